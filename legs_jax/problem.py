@@ -142,11 +142,17 @@ def _validate(pb: Problem, path: str | os.PathLike | None) -> None:
     for field, (kind, letters) in _SCHEMA.items():
         arr = getattr(pb, field)
         if not isinstance(arr, np.ndarray):
-            raise ProblemFileError(path, field, f"expected a NumPy array, got {type(arr)}")
+            raise ProblemFileError(
+                path, field, f"expected a NumPy array, got {type(arr)}"
+            )
         if kind == "f" and arr.dtype.kind not in "f":
-            raise ProblemFileError(path, field, f"expected floats, got dtype {arr.dtype}")
+            raise ProblemFileError(
+                path, field, f"expected floats, got dtype {arr.dtype}"
+            )
         if kind == "b" and arr.dtype != np.bool_:
-            raise ProblemFileError(path, field, f"expected booleans, got dtype {arr.dtype}")
+            raise ProblemFileError(
+                path, field, f"expected booleans, got dtype {arr.dtype}"
+            )
         if arr.ndim != len(letters):
             raise ProblemFileError(
                 path,
@@ -202,7 +208,9 @@ def _validate(pb: Problem, path: str | os.PathLike | None) -> None:
             path, "topple", f"row {s} must sum to 1, sums to {rows[s]:.6g}"
         )
     if np.any(pb.topple[:, ~pv] != 0.0):
-        raise ProblemFileError(path, "topple", "probability of toppling onto a padded pose")
+        raise ProblemFileError(
+            path, "topple", "probability of toppling onto a padded pose"
+        )
     if np.any(pb.valid[:, ~pv, :]):
         raise ProblemFileError(path, "valid", "valid grasps on a padded pose")
     if not isinstance(pb.meta, dict):
@@ -228,13 +236,20 @@ def save(problem: Problem, path: str | os.PathLike) -> Path:
     members: list[tuple[str, bytes]] = []
     for f in _ARRAY_FIELDS:
         members.append((f + ".npy", _npy_bytes(getattr(problem, f))))
-    header = {"format_version": FORMAT_VERSION, "name": problem.name, "meta": problem.meta}
+    header = {
+        "format_version": FORMAT_VERSION,
+        "name": problem.name,
+        "meta": problem.meta,
+    }
     text = json.dumps(header, sort_keys=True)
     members.append(("meta_json.npy", _npy_bytes(np.array(text))))
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
     try:
-        with os.fdopen(fd, "wb") as fh, zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED) as z:
+        with (
+            os.fdopen(fd, "wb") as fh,
+            zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED) as z,
+        ):
             for name, data in members:
                 info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
                 info.compress_type = zipfile.ZIP_DEFLATED
@@ -256,9 +271,13 @@ def load(path: str | os.PathLike) -> Problem:
     try:
         npz = np.load(path, allow_pickle=False)
     except Exception as e:  # noqa: BLE001 - any unreadable file is refused the same way
-        raise ProblemFileError(path, "<file>", f"not a readable .npz file ({e})") from None
+        raise ProblemFileError(
+            path, "<file>", f"not a readable .npz file ({e})"
+        ) from None
     if not isinstance(npz, np.lib.npyio.NpzFile):
-        raise ProblemFileError(path, "<file>", "not an .npz archive (a bare .npy array?)")
+        raise ProblemFileError(
+            path, "<file>", "not an .npz archive (a bare .npy array?)"
+        )
     with npz:
         arrays: dict[str, np.ndarray] = {}
         for f in _ARRAY_FIELDS:

@@ -1,0 +1,210 @@
+"""The problem container: round trip, determinism, validation messages, stacking."""
+
+from __future__ import annotations
+
+import dataclasses
+import filecmp
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from legs_jax import problem as pm
+from legs_jax.synthetic import make_problem
+
+
+@pytest.fixture
+def prob() -> pm.Problem:
+    return make_problem(seed=3, num_poses=4, num_grasps=50, num_trials=2)
+
+
+def test_round_trip_identical(tmp_path: Path, prob: pm.Problem) -> None:
+    path = pm.save(prob, tmp_path / "obj.npz")
+    back = pm.load(path)
+    assert back == prob
+    for f in dataclasses.fields(pm.Problem):
+        a, b = getattr(prob, f.name), getattr(back, f.name)
+        if isinstance(a, np.ndarray):
+            assert a.dtype == b.dtype and a.shape == b.shape
+            np.testing.assert_array_equal(a, b)
+    assert back.name == prob.name and back.meta == prob.meta
+
+
+def test_save_is_byte_identical(tmp_path: Path, prob: pm.Problem) -> None:
+    a = pm.save(prob, tmp_path / "a.npz")
+    b = pm.save(
+        make_problem(seed=3, num_poses=4, num_grasps=50, num_trials=2),
+        tmp_path / "b.npz",
+    )
+    assert filecmp.cmp(a, b, shallow=False)
+    c = pm.save(
+        make_problem(seed=4, num_poses=4, num_grasps=50, num_trials=2),
+        tmp_path / "c.npz",
+    )
+    assert not filecmp.cmp(a, c, shallow=False)
+
+
+def test_file_without_pose_valid_loads(tmp_path: Path, prob: pm.Problem) -> None:
+    arrays = {
+        f.name: getattr(prob, f.name)
+        for f in dataclasses.fields(pm.Problem)
+        if isinstance(getattr(prob, f.name), np.ndarray) and f.name != "pose_valid"
+    }
+    path = tmp_path / "plain.npz"
+    np.savez(path, **arrays)
+    back = pm.load(path)
+    assert back.name == "plain"
+    assert back.pose_valid.all() and back.pose_valid.shape == (prob.num_poses,)
+
+
+def _write_modified(tmp_path: Path, prob: pm.Problem, **changes) -> Path:
+    """Write a problem file with some arrays replaced (None removes the array)."""
+    arrays = {
+        f.name: getattr(prob, f.name)
+        for f in dataclasses.fields(pm.Problem)
+        if isinstance(getattr(prob, f.name), np.ndarray)
+    }
+    for key, value in changes.items():
+        if value is None:
+            arrays.pop(key)
+        else:
+            arrays[key] = value
+    path = tmp_path / "bad_object.npz"
+    np.savez(path, **arrays)
+    return path
+
+
+def _bad_cases(prob: pm.Problem) -> dict[str, tuple[str, dict]]:
+    rob = prob.robustness.copy()
+    rob_nan = rob.copy()
+    rob_nan[0, 1, 2] = np.nan
+    rob_big = rob.copy()
+    rob_big[1, 0, 0] = 1.5
+    prior_neg = prob.prior.copy()
+    prior_neg[0, 0, 3] = -0.1
+    topple_bad = prob.topple.copy()
+    topple_bad[2, 0] += 0.3
+    return {
+        "missing": ("prior", {"prior": None}),
+        "missing_valid": ("valid", {"valid": None}),
+        "wrong_rank": ("robustness", {"robustness": rob[0]}),
+        "inconsistent_shape": ("prior", {"prior": prob.prior[:, :, :10]}),
+        "landing_sum": ("landing", {"landing": prob.landing * 0.5}),
+        "topple_rows": ("topple", {"topple": topple_bad}),
+        "robustness_range": ("robustness", {"robustness": rob_big}),
+        "prior_range": ("prior", {"prior": prior_neg}),
+        "nan": ("robustness", {"robustness": rob_nan}),
+        "valid_dtype": ("valid", {"valid": prob.valid.astype(np.float32)}),
+        "geometry_shape": ("grasp_axis", {"grasp_axis": prob.grasp_axis[..., :2]}),
+        "pose_transform_shape": ("pose_transform", {"pose_transform": np.eye(4)}),
+    }
+
+
+@pytest.mark.parametrize(
+    "case",
+    [
+        "missing",
+        "missing_valid",
+        "wrong_rank",
+        "inconsistent_shape",
+        "landing_sum",
+        "topple_rows",
+        "robustness_range",
+        "prior_range",
+        "nan",
+        "valid_dtype",
+        "geometry_shape",
+        "pose_transform_shape",
+    ],
+)
+def test_load_refuses_bad_field(tmp_path: Path, prob: pm.Problem, case: str) -> None:
+    field, changes = _bad_cases(prob)[case]
+    path = _write_modified(tmp_path, prob, **changes)
+    with pytest.raises(pm.ProblemFileError) as info:
+        pm.load(path)
+    message = str(info.value)
+    assert str(path) in message, message
+    assert f"'{field}'" in message, message
+    assert info.value.field == field
+
+
+def test_load_refuses_truncated_file(tmp_path: Path, prob: pm.Problem) -> None:
+    path = pm.save(prob, tmp_path / "whole.npz")
+    data = path.read_bytes()
+    cut = tmp_path / "cut.npz"
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.raises(pm.ProblemFileError) as info:
+        pm.load(cut)
+    assert str(cut) in str(info.value) and info.value.field == "<file>"
+
+
+def test_load_refuses_corrupt_member(tmp_path: Path, prob: pm.Problem) -> None:
+    path = tmp_path / "corrupt.npz"
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr("landing.npy", b"\x93NUMPY garbage")
+    with pytest.raises(pm.ProblemFileError) as info:
+        pm.load(path)
+    assert str(path) in str(info.value) and info.value.field == "landing"
+
+
+@pytest.mark.parametrize("content", [b"", b"hello, not an archive", None])
+def test_load_refuses_non_npz(tmp_path: Path, content: bytes | None) -> None:
+    path = tmp_path / "thing.npz"
+    if content is None:
+        np.save(tmp_path / "thing.npy", np.zeros(3))
+        path = tmp_path / "thing.npy"
+    else:
+        path.write_bytes(content)
+    with pytest.raises(pm.ProblemFileError) as info:
+        pm.load(path)
+    assert str(path) in str(info.value) and info.value.field == "<file>"
+
+
+def test_load_missing_file(tmp_path: Path) -> None:
+    with pytest.raises(pm.ProblemFileError, match="no such file"):
+        pm.load(tmp_path / "nope.npz")
+
+
+def test_save_refuses_invalid_problem(tmp_path: Path, prob: pm.Problem) -> None:
+    bad = dataclasses.replace(prob, landing=prob.landing * 2)
+    with pytest.raises(pm.ProblemFileError, match="landing"):
+        pm.save(bad, tmp_path / "bad.npz")
+    assert not list(tmp_path.iterdir()), "a refused save must leave nothing behind"
+
+
+def test_p_star_is_max_over_valid(prob: pm.Problem) -> None:
+    masked = make_problem(
+        seed=5, num_poses=3, num_grasps=40, num_trials=2, invalid_fraction=0.5
+    )
+    expected = np.array(
+        [
+            [masked.robustness[t, s][masked.valid[t, s]].max() for s in range(3)]
+            for t in range(2)
+        ]
+    )
+    np.testing.assert_array_equal(masked.p_star(), expected)
+
+
+def test_stack_pads_and_masks() -> None:
+    a = make_problem(seed=1, num_poses=2, num_grasps=30, num_trials=3)
+    b = make_problem(seed=2, num_poses=5, num_grasps=20, num_trials=2)
+    batch = pm.stack([a, b])
+    assert batch.shape == (2, 2, 5, 30)
+    assert batch.names == (a.name, b.name)
+    # Real parts copied, padding masked and inert.
+    np.testing.assert_array_equal(batch.robustness[0, :, :2, :], a.robustness[:2])
+    np.testing.assert_array_equal(batch.prior[1, :, :, :20], b.prior)
+    assert not batch.valid[0, :, 2:, :].any() and not batch.valid[1, :, :, 20:].any()
+    assert (batch.robustness[~batch.valid] == 0).all()
+    np.testing.assert_array_equal(batch.pose_valid[0], [1, 1, 0, 0, 0])
+    assert batch.landing[0, 2:].sum() == 0
+    np.testing.assert_allclose(batch.landing.sum(axis=1), 1.0, atol=1e-6)
+    np.testing.assert_allclose(batch.topple.sum(axis=2), 1.0, atol=1e-6)
+    np.testing.assert_array_equal(batch.topple[0, 2:, 2:], np.eye(3))
+
+
+def test_stack_refuses_too_few_trials() -> None:
+    a = make_problem(seed=1, num_poses=2, num_grasps=10, num_trials=1)
+    with pytest.raises(ValueError, match="1 trials, 2 were asked"):
+        pm.stack([a], num_trials=2)
