@@ -1,0 +1,1380 @@
+"""Run the paper's experiments as resumable, chunked sweeps with tidy results.
+
+    python -m legs_jax.sweep --all                      # every experiment of SPEC §7
+    python -m legs_jax.sweep --experiment main --objects bar_clamp --methods legs tql
+    python -m legs_jax.sweep --experiment main --problems my_object.npz
+    python -m legs_jax.sweep --smoke --out /tmp/smoke   # every experiment, toy size
+
+Each experiment (declared in ``sweeps/``) is split into chunks: one arm (method,
+variant and its hyperparameter grid, which runs as one batch axis), a few objects and
+a block of trials, sized to bound memory and the work lost to an interruption.
+Every finished chunk is written atomically under ``<out>/<experiment>/chunks/``;
+running the same command again skips finished chunks (after checking that they
+were made with the same configuration) and, once all are there, merges them into
+``runs.parquet``, ``curves.parquet`` and ``checks.parquet`` (see
+:mod:`legs_jax.results`). Results never depend on chunking, interruption, device
+count or host count.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import difflib
+import hashlib
+import importlib.metadata
+import math
+import os
+import platform
+import re
+import shutil
+import socket
+import subprocess
+import sys
+import time
+from collections import OrderedDict
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from legs_jax import results as res
+
+__all__ = ["Chunk", "ExperimentPlan", "SweepError", "main", "plan_chunks"]
+
+# Version of the result layout; part of every configuration hash.
+RESULTS_VERSION = 1
+
+METHODS = (
+    "dexnet",
+    "k100_ub",
+    "borges_100",
+    "borges_2000",
+    "legs_no_as",
+    "legs",
+    "tql",
+)
+HPARAM_DEFAULTS = dict(
+    s=1.0, prior_offset=1.0, delta=0.05, gamma=0.2, epsilon=0.1, eta=0.1, k=100, n=100
+)
+_STATIC_HPARAMS = ("k", "n")
+
+# Sizes of --smoke: synthetic problems named like the real objects.
+SMOKE = dict(
+    trials=1, rollouts=2, horizon=200, num_poses=4, num_grasps=200, max_objects=2
+)
+
+# Chunk budgets. Work is counted in candidate-grasp evaluations (about one exact
+# Beta draw each): 2.4e9 is 400 rollouts of 3000 steps over K = 2000 grasps, about
+# a minute and a half on a 2-core CPU. Memory is the engine's estimated state.
+WORK_BUDGET = 2.4e9
+MEMORY_BUDGET = 1.5e9
+DIRICHLET_SAMPLES = 3000
+
+
+class SweepError(Exception):
+    """A user error of the sweep command: printed as one line, exit status 2."""
+
+
+# =========================================================================== plans
+@dataclasses.dataclass(frozen=True)
+class ObjectEntry:
+    """One object of an experiment and its problem file."""
+
+    name: str
+    set: str
+    object_id: int
+    path: str
+    sha256: str
+    num_poses: int  # P slots of the problem file
+    num_grasps: int  # K slots
+    num_trials: int  # T in the file
+
+
+@dataclasses.dataclass(frozen=True)
+class Arm:
+    """A method with its hyperparameters; ``grid`` holds G full hyperparameter
+    dicts (a one-point grid for a plain configuration)."""
+
+    method: str
+    variant: str
+    overrides: tuple[tuple[str, Any], ...]  # as declared (sequences = grid)
+    grid: tuple[tuple[tuple[str, float], ...], ...]  # [G] full hparams
+
+    @property
+    def label(self) -> str:
+        return self.method + (f".{self.variant}" if self.variant else "")
+
+    def grid_dicts(self) -> list[dict[str, float]]:
+        return [dict(g) for g in self.grid]
+
+    def engine_hparams(self) -> dict[str, Any]:
+        return {k: (tuple(v) if isinstance(v, tuple) else v) for k, v in self.overrides}
+
+
+@dataclasses.dataclass(frozen=True)
+class Chunk:
+    """A unit of work: one arm, some objects, a block of trials, all rollouts."""
+
+    id: str
+    arm: int  # index into the experiment's arms
+    objects: tuple[int, ...]  # indices into the experiment's objects
+    trials: tuple[int, ...]
+    num_poses: int  # P the batch is padded to
+    num_grasps: int  # K the batch is padded to
+    record_checks: bool
+    record_active_set: bool
+    rollouts: int  # G x O x T x R of the chunk
+    work: float  # estimated cost (progress bar units)
+    hash: str
+
+
+@dataclasses.dataclass
+class ExperimentPlan:
+    name: str
+    description: str
+    objects: list[ObjectEntry]
+    arms: list[Arm]
+    trials: int
+    rollouts: int
+    horizon: int
+    record_every: int
+    check_every: int
+    check_methods: tuple[str, ...]
+    active_set_methods: tuple[str, ...]
+    seed: int
+    smoke: bool
+    chunks: list[Chunk] = dataclasses.field(default_factory=list)
+    extra: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    def config(self) -> dict[str, Any]:
+        """Everything the results depend on (not devices, hosts or chunking)."""
+        return {
+            "results_version": RESULTS_VERSION,
+            "experiment": self.name,
+            "smoke": self.smoke,
+            "objects": [
+                {
+                    "name": o.name,
+                    "set": o.set,
+                    "object_id": o.object_id,
+                    "sha256": o.sha256,
+                }
+                for o in self.objects
+            ],
+            "arms": [
+                {"method": a.method, "variant": a.variant, "grid": a.grid_dicts()}
+                for a in self.arms
+            ],
+            "trials": self.trials,
+            "rollouts": self.rollouts,
+            "horizon": self.horizon,
+            "record_every": self.record_every,
+            "check_every": self.check_every,
+            "check_methods": list(self.check_methods),
+            "active_set_methods": list(self.active_set_methods),
+            "seed": self.seed,
+        }
+
+    @property
+    def total_rollouts(self) -> int:
+        return sum(c.rollouts for c in self.chunks)
+
+
+# ----------------------------------------------------------------------- hparams
+def _check_hparam(name: str, value: Any) -> None:
+    """SPEC §4 ranges; k <= K is checked against the problems later."""
+    if name not in HPARAM_DEFAULTS:
+        known = ", ".join(HPARAM_DEFAULTS)
+        raise SweepError(f"unknown hyperparameter '{name}' (known: {known})")
+    if name in _STATIC_HPARAMS:
+        if isinstance(value, bool) or int(value) != value or value < 1:
+            raise SweepError(f"{name} must be an integer >= 1, got {value!r}")
+        return
+    v = float(value)
+    if not math.isfinite(v):
+        raise SweepError(f"{name} must be finite, got {value!r}")
+    if name in ("delta", "gamma") and not 0.0 < v < 1.0:
+        raise SweepError(f"{name} must lie in (0, 1), got {value!r}")
+    if name in ("epsilon", "eta") and not 0.0 <= v <= 1.0:
+        raise SweepError(f"{name} must lie in [0, 1], got {value!r}")
+    if name in ("s", "prior_offset") and v < 0.0:
+        raise SweepError(f"{name} must be >= 0, got {value!r}")
+
+
+def make_arm(method: str, variant: str, hparams: Mapping[str, Any]) -> Arm:
+    """Resolve a declared arm: scalars and equal-length sequences (a grid, zipped)."""
+    if method not in METHODS:
+        raise SweepError(f"unknown method '{method}' (known: {', '.join(METHODS)})")
+    sizes = {
+        k: len(v)
+        for k, v in hparams.items()
+        if isinstance(v, list | tuple | np.ndarray)
+    }
+    if len(set(sizes.values())) > 1:
+        raise SweepError(f"{method}: grid sequences differ in length: {sizes}")
+    g = next(iter(sizes.values()), 1)
+    if g < 1:
+        raise SweepError(f"{method}: empty hyperparameter grid")
+    grid = []
+    for i in range(g):
+        point = dict(HPARAM_DEFAULTS)
+        for k, v in hparams.items():
+            x = v[i] if k in sizes else v
+            if k in sizes and k in _STATIC_HPARAMS:
+                raise SweepError(f"{k} is static (it sets array shapes): no grid")
+            _check_hparam(k, x)
+            point[k] = int(x) if k in _STATIC_HPARAMS else float(x)
+        grid.append(tuple(sorted(point.items())))
+    overrides = tuple(
+        (k, tuple(float(x) for x in v) if k in sizes else v)
+        for k, v in sorted(hparams.items())
+    )
+    return Arm(method, variant, overrides, tuple(grid))
+
+
+# ------------------------------------------------------------------ chunk planning
+def _pose_bucket(p: int) -> int:
+    """Pad the pose axis to the next power of two (fewer distinct shapes, fewer
+    compilations); padding is masked and never changes results."""
+    return 1 << max(0, (p - 1).bit_length())
+
+
+def _candidates(method: str, k: int, K: int) -> float:
+    """Candidate grasps whose posterior a step touches (cost model)."""
+    if method in ("dexnet", "k100_ub"):
+        return 1.0
+    if method in ("borges_100",):
+        return float(min(100, K))
+    if method == "legs":
+        return float(min(k, K))
+    if method == "tql":
+        return K / 8.0  # no sampling: a masked argmax
+    return float(K)
+
+
+def _rollout_work(
+    method: str, k: int, P: int, K: int, horizon: int, check_every: int
+) -> float:
+    steps = horizon * (_candidates(method, k, K) + 32.0)
+    checks = (horizon // check_every) * DIRICHLET_SAMPLES * (P + 1)
+    return steps + checks
+
+
+def _rollout_memory(P: int, K: int, horizon: int, cfg: ExperimentPlan, act: bool):
+    c1 = horizon // cfg.record_every + 2
+    c2 = horizon // cfg.check_every + 1
+    mem = P * K * 16 + (c1 + 4 * c2) * 4 + 256
+    if act:
+        mem += c2 * P * HPARAM_DEFAULTS["k"] * 4
+    return mem
+
+
+def _safe(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]", "_", name)
+
+
+def _chunk_id(arm: Arm, names: Sequence[str], trials: Sequence[int]) -> str:
+    tag = _safe(names[0])
+    if len(names) > 1:
+        h = hashlib.sha256("\n".join(names).encode()).hexdigest()[:6]
+        tag += f"+{len(names) - 1}-{h}"
+    return f"{_safe(arm.label)}__{tag}__t{trials[0]}-{trials[-1]}"
+
+
+def plan_chunks(
+    cfg: ExperimentPlan,
+    work_budget: float = WORK_BUDGET,
+    memory_budget: float = MEMORY_BUDGET,
+) -> list[Chunk]:
+    """Split an experiment into chunks, deterministically from its configuration.
+
+    Objects of an arm are grouped by padded shape (pose bucket, K) in catalogue
+    order; a chunk holds whole objects while they fit the budgets, else one object
+    and an equal-sized block of its trials.
+    """
+    chunks: list[Chunk] = []
+    for a, arm in enumerate(cfg.arms):
+        G = len(arm.grid)
+        k = int(arm.grid[0][[n for n, _ in arm.grid[0]].index("k")][1])
+        record_checks = arm.method in cfg.check_methods
+        record_act = arm.method in cfg.active_set_methods
+        groups: OrderedDict[tuple[int, int], list[int]] = OrderedDict()
+        for i, o in enumerate(cfg.objects):
+            groups.setdefault((_pose_bucket(o.num_poses), o.num_grasps), []).append(i)
+        for (P, K), members in groups.items():
+            w = _rollout_work(arm.method, k, P, K, cfg.horizon, cfg.check_every)
+            m = _rollout_memory(P, K, cfg.horizon, cfg, record_act)
+            per_trial = G * cfg.rollouts
+            cap = int(
+                min(work_budget / (per_trial * w), memory_budget / (per_trial * m))
+            )
+            cap = max(1, cap)
+            T = cfg.trials
+            if cap >= T:
+                per_chunk = cap // T
+                n_chunks = math.ceil(len(members) / per_chunk)
+                per_chunk = math.ceil(len(members) / n_chunks)
+                blocks = [
+                    (members[i : i + per_chunk], tuple(range(T)))
+                    for i in range(0, len(members), per_chunk)
+                ]
+            else:
+                n_blocks = math.ceil(T / cap)
+                splits = np.array_split(np.arange(T), n_blocks)
+                blocks = [
+                    ([i], tuple(int(t) for t in block))
+                    for i in members
+                    for block in splits
+                ]
+            for objs, trials in blocks:
+                names = [cfg.objects[i].name for i in objs]
+                n_roll = G * len(objs) * len(trials) * cfg.rollouts
+                spec = {
+                    "experiment": cfg.config(),
+                    "arm": a,
+                    "objects": names,
+                    "trials": list(trials),
+                    "pad": [P, K],
+                }
+                chunks.append(
+                    Chunk(
+                        id=_chunk_id(arm, names, trials),
+                        arm=a,
+                        objects=tuple(objs),
+                        trials=trials,
+                        num_poses=P,
+                        num_grasps=K,
+                        record_checks=record_checks,
+                        record_active_set=record_act,
+                        rollouts=n_roll,
+                        work=n_roll * w,
+                        hash=res.config_hash(spec),
+                    )
+                )
+    ids = [c.id for c in chunks]
+    if len(set(ids)) != len(ids):  # pragma: no cover - names are unique per plan
+        raise SweepError("internal error: duplicate chunk ids")
+    return chunks
+
+
+# ======================================================================== objects
+def _catalog():
+    """The object catalogue of ``precompute``, or None when it is not available."""
+    try:
+        from precompute import catalog
+    except ImportError:
+        return None
+    if not hasattr(catalog, "objects"):
+        return None
+    return catalog
+
+
+def _name_object_id(name: str) -> int:
+    """Stable object id of a problem outside the catalogue (SPEC §2 contract)."""
+    try:
+        from legs_jax import keys
+
+        fn = getattr(keys, "object_id_for_name", None) or getattr(keys, "name_id", None)
+    except ImportError:
+        fn = None
+    if fn is not None:
+        return int(fn(name))
+    return int.from_bytes(hashlib.sha256(name.encode()).digest()[:8], "little") % (
+        2**31
+    )
+
+
+def _peek_shapes(path: str | os.PathLike) -> dict[str, tuple[int, ...]]:
+    """Array shapes of a problem file without loading the arrays."""
+    import zipfile
+
+    shapes = {}
+    with zipfile.ZipFile(path) as z:
+        for member in ("landing.npy", "robustness.npy"):
+            with z.open(member) as fh:
+                version = np.lib.format.read_magic(fh)
+                if version == (1, 0):
+                    shape, _, _ = np.lib.format.read_array_header_1_0(fh)
+                elif version == (2, 0):
+                    shape, _, _ = np.lib.format.read_array_header_2_0(fh)
+                else:
+                    with z.open(member) as full:
+                        shape = np.lib.format.read_array(full).shape
+                shapes[member[:-4]] = tuple(shape)
+    return shapes
+
+
+def _resolve_names(requested: Sequence[str], catalog) -> list[tuple[str, str, int]]:
+    """(name, set, object_id) of set or object names, in catalogue order."""
+    infos = list(catalog.objects())
+    by_name = {i.name: i for i in infos}
+    sets: OrderedDict[str, list] = OrderedDict()
+    for i in infos:
+        sets.setdefault(i.set, []).append(i)
+    chosen: list = []
+    for r in requested:
+        if r in sets:
+            chosen.extend(sets[r])
+        elif r in by_name:
+            chosen.append(by_name[r])
+        else:
+            known = list(sets) + list(by_name)
+            near = difflib.get_close_matches(r, known, n=3)
+            hint = f"; did you mean {', '.join(near)}?" if near else ""
+            raise SweepError(
+                f"unknown object or set '{r}' (sets: {', '.join(sets)}; "
+                f"objects: {', '.join(by_name)}){hint}"
+            )
+    seen = set()
+    out = []
+    for i in chosen:
+        if i.name not in seen:
+            seen.add(i.name)
+            out.append((i.name, i.set, int(i.object_id)))
+    rank = {i.name: n for n, i in enumerate(infos)}
+    out.sort(key=lambda x: rank[x[0]])
+    return out
+
+
+def _entry(
+    name: str, set_: str, object_id: int, path: str | os.PathLike
+) -> ObjectEntry:
+    from legs_jax import problem as problem_mod
+
+    try:
+        shapes = _peek_shapes(path)
+    except Exception:  # noqa: BLE001 - refuse any unreadable file the same way
+        problem_mod.load(path)  # raises ProblemFileError naming the field
+        raise
+    T, P, K = shapes["robustness"]
+    return ObjectEntry(
+        name=name,
+        set=set_,
+        object_id=object_id,
+        path=str(path),
+        sha256=res.sha256_file(path),
+        num_poses=int(P),
+        num_grasps=int(K),
+        num_trials=int(T),
+    )
+
+
+def _user_problems(paths: Sequence[str], catalog) -> list[ObjectEntry]:
+    from legs_jax import problem as problem_mod
+
+    known = {}
+    if catalog is not None:
+        known = {i.name: i for i in catalog.objects()}
+    entries = []
+    for p in paths:
+        pb = problem_mod.load(p)  # validates; ProblemFileError names file and field
+        meta = pb.meta or {}
+        if "object_id" in meta:
+            oid = int(meta["object_id"])
+        elif (
+            pb.name in known
+            and meta.get("set", known[pb.name].set) == known[pb.name].set
+        ):
+            oid = int(known[pb.name].object_id)
+        else:
+            oid = _name_object_id(pb.name)
+        set_ = str(
+            meta.get("set", known[pb.name].set if pb.name in known else "custom")
+        )
+        entries.append(_entry(pb.name, set_, oid, p))
+    names = [e.name for e in entries]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise SweepError(f"--problems: several files hold the object {dup[0]!r}")
+    return entries
+
+
+def _smoke_problems(names: Sequence[str], catalog, folder: Path) -> list[ObjectEntry]:
+    """Synthetic problems at smoke size, named like the real objects."""
+    from legs_jax import problem as problem_mod
+    from legs_jax import synthetic
+
+    known = {}
+    if catalog is not None:
+        known = {i.name: i for i in catalog.objects()}
+    entries = []
+    for name in names:
+        info = known.get(name)
+        oid = int(info.object_id) if info is not None else _name_object_id(name)
+        set_ = info.set if info is not None else "synthetic"
+        path = folder / f"{_safe(name)}.npz"
+        if not path.is_file():
+            pb = synthetic.make_problem(
+                seed=oid,
+                num_poses=SMOKE["num_poses"],
+                num_grasps=SMOKE["num_grasps"],
+                num_trials=SMOKE["trials"],
+                name=name,
+            )
+            pb = dataclasses.replace(
+                pb, meta={**pb.meta, "synthetic": True, "smoke": True}
+            )
+            problem_mod.save(pb, path)
+        entries.append(_entry(name, set_, oid, path))
+    return entries
+
+
+# ====================================================================== arguments
+EXPERIMENTS = ("main", "case_study", "early_stopping", "prior_strength", "confidence")
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {v}")
+    return v
+
+
+def _nonneg_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {v}")
+    return v
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="python -m legs_jax.sweep",
+        description=(
+            "Run the paper's experiments (SPEC §7) as resumable, chunked sweeps and "
+            "write tidy parquet results under OUT/<experiment>/: runs.parquet (one "
+            "row per run), curves.parquet (gap every 10 steps, mean and standard "
+            "error over the T x R runs of each object, method and hyperparameters), "
+            "checks.parquet (one row per Dirichlet check), manifest.json. Re-running "
+            "the same command resumes: finished chunks are kept and checked against "
+            "the configuration."
+        ),
+        epilog=(
+            "Experiments: main (Table I), case_study (Fig. 3), early_stopping "
+            "(Sec. 5.4, Fig. 4), prior_strength and confidence (appendix). "
+            "Multi-host: start the same command on every host with --coordinator "
+            "HOST:PORT --num-processes N --process-id I (I = 0..N-1) and a shared "
+            "--out; each process takes every N-th chunk and process 0 merges."
+        ),
+    )
+    what = p.add_argument_group("what to run")
+    what.add_argument("--all", action="store_true", help="run every experiment")
+    what.add_argument(
+        "--experiment",
+        nargs="+",
+        metavar="NAME",
+        help=f"experiments to run: {', '.join(EXPERIMENTS)}",
+    )
+    what.add_argument(
+        "--objects",
+        nargs="+",
+        metavar="NAME",
+        help="run on these objects or sets (dexnet_adv, egad_eval) instead of each "
+        "experiment's own list; problem files are built when missing",
+    )
+    what.add_argument(
+        "--problems",
+        nargs="+",
+        metavar="PATH",
+        help="run on these problem files (e.g. made by precompute --mesh) instead "
+        "of the catalogue objects",
+    )
+    what.add_argument(
+        "--methods",
+        nargs="+",
+        metavar="NAME",
+        help=f"keep only these methods of each experiment: {', '.join(METHODS)}",
+    )
+    size = p.add_argument_group("sizes (default: each experiment's own)")
+    size.add_argument("--trials", type=_positive_int, help="trials T (reservoirs)")
+    size.add_argument("--rollouts", type=_positive_int, help="rollouts R per trial")
+    size.add_argument("--horizon", type=_positive_int, help="horizon H (steps)")
+    size.add_argument("--seed", type=_nonneg_int, default=0, help="seed (default 0)")
+    size.add_argument(
+        "--smoke",
+        action="store_true",
+        help=f"toy size for a quick end-to-end check: synthetic problems "
+        f"({SMOKE['num_poses']} poses, {SMOKE['num_grasps']} grasps) named like the "
+        f"real objects (at most {SMOKE['max_objects']} per experiment), "
+        f"T={SMOKE['trials']}, R={SMOKE['rollouts']}, H={SMOKE['horizon']}; "
+        "default --out results/_scratch/smoke",
+    )
+    out = p.add_argument_group("output and devices")
+    out.add_argument("--out", metavar="DIR", help="output folder (default results)")
+    out.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="delete existing results of the selected experiments and start over",
+    )
+    out.add_argument(
+        "--devices",
+        type=_positive_int,
+        metavar="N",
+        help="use the first N local devices (default all); on a CPU-only machine N "
+        "host devices are created, one per core is a good choice",
+    )
+    out.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="print the plan (chunks, rollouts) and exit",
+    )
+    out.add_argument("--quiet", action="store_true", help="no progress bar")
+    dist = p.add_argument_group("multi-host (jax.distributed)")
+    dist.add_argument("--coordinator", metavar="HOST:PORT", help="coordinator address")
+    dist.add_argument("--num-processes", type=_positive_int, metavar="N")
+    dist.add_argument("--process-id", type=_nonneg_int, metavar="I")
+    return p
+
+
+def _validate_args(p: argparse.ArgumentParser, a: argparse.Namespace) -> None:
+    if a.all and a.experiment:
+        p.error("use either --all or --experiment, not both")
+    if not a.all and not a.experiment and not a.smoke:
+        p.error("nothing to run: pass --all, --experiment NAME or --smoke")
+    for e in a.experiment or ():
+        if e not in EXPERIMENTS:
+            near = difflib.get_close_matches(e, EXPERIMENTS, n=1)
+            hint = f"; did you mean {near[0]}?" if near else ""
+            p.error(f"unknown experiment '{e}' (known: {', '.join(EXPERIMENTS)}){hint}")
+    for m in a.methods or ():
+        if m not in METHODS:
+            near = difflib.get_close_matches(m, METHODS, n=1)
+            hint = f"; did you mean {near[0]}?" if near else ""
+            p.error(f"unknown method '{m}' (known: {', '.join(METHODS)}){hint}")
+    if a.objects and a.problems:
+        p.error("use either --objects or --problems, not both")
+    for f in a.problems or ():
+        if not Path(f).is_file():
+            p.error(f"--problems: no such file: {f}")
+    dist = (a.coordinator, a.num_processes, a.process_id)
+    if any(x is not None for x in dist) and not all(x is not None for x in dist):
+        p.error("--coordinator, --num-processes and --process-id go together")
+    if a.num_processes is not None and a.process_id >= a.num_processes:
+        p.error(f"--process-id must be < --num-processes ({a.num_processes})")
+
+
+def _set_device_flags(n: int | None) -> None:
+    """Ask XLA for ``n`` host devices; takes effect only before JAX starts."""
+    if n is None or n < 2:
+        return
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "xla_force_host_platform_device_count" in flags:
+        return
+    os.environ["XLA_FLAGS"] = (
+        flags + f" --xla_force_host_platform_device_count={n}"
+    ).strip()
+
+
+# ===================================================================== experiments
+def _experiment_plan(
+    name: str, a: argparse.Namespace, catalog, out: Path
+) -> ExperimentPlan | None:
+    import sweeps
+
+    mod = sweeps.get(name)
+    arms = []
+    for method, variant, hp in mod.ARMS:
+        if a.methods and method not in a.methods:
+            continue
+        arms.append(make_arm(method, variant, hp))
+    if not arms:
+        return None
+    trials = a.trials or (SMOKE["trials"] if a.smoke else mod.TRIALS)
+    rollouts = a.rollouts or (SMOKE["rollouts"] if a.smoke else mod.ROLLOUTS)
+    horizon = a.horizon or (SMOKE["horizon"] if a.smoke else mod.HORIZON)
+    if a.problems:
+        objects = _user_problems(a.problems, catalog)
+    else:
+        requested = list(a.objects) if a.objects else None
+        if a.smoke:
+            names = requested or list(mod.SMOKE_OBJECTS)[: SMOKE["max_objects"]]
+            if catalog is not None:
+                names = [n for n, _, _ in _resolve_names(names, catalog)]
+            objects = _smoke_problems(names, catalog, out / "_smoke_problems")
+        else:
+            if catalog is None:
+                raise SweepError(
+                    "the object catalogue (precompute.catalog) is not available; "
+                    "pass problem files with --problems"
+                )
+            resolved = _resolve_names(requested or list(mod.OBJECTS), catalog)
+            objects = _catalog_problems(resolved)
+    plan = ExperimentPlan(
+        name=name,
+        description=mod.DESCRIPTION,
+        objects=objects,
+        arms=arms,
+        trials=trials,
+        rollouts=rollouts,
+        horizon=horizon,
+        record_every=mod.RECORD_EVERY,
+        check_every=mod.CHECK_EVERY,
+        check_methods=tuple(mod.CHECK_METHODS),
+        active_set_methods=tuple(mod.ACTIVE_SET_METHODS),
+        seed=a.seed,
+        smoke=bool(a.smoke),
+        extra={"rho_min": list(getattr(mod, "RHO_MIN", ()))},
+    )
+    _check_plan(plan)
+    plan.chunks = plan_chunks(plan)
+    return plan
+
+
+def _catalog_problems(resolved: Sequence[tuple[str, str, int]]) -> list[ObjectEntry]:
+    try:
+        import precompute
+    except ImportError:  # pragma: no cover - the package ships with legs_jax
+        precompute = None
+    if precompute is None or not hasattr(precompute, "ensure"):
+        raise SweepError(
+            "problem building (precompute.ensure) is not available; "
+            "pass problem files with --problems"
+        )
+    paths = precompute.ensure([n for n, _, _ in resolved])
+    return [_entry(n, s, oid, paths[n]) for n, s, oid in resolved]
+
+
+def _check_plan(plan: ExperimentPlan) -> None:
+    for o in plan.objects:
+        if plan.trials > o.num_trials:
+            raise SweepError(
+                f"{plan.name}: object '{o.name}' has {o.num_trials} trials, "
+                f"--trials {plan.trials} asked for more"
+            )
+        for arm in plan.arms:
+            k = dict(arm.grid[0])["k"]
+            if arm.method in ("legs",) and k > o.num_grasps:
+                raise SweepError(
+                    f"{plan.name}: k={k} exceeds the {o.num_grasps} grasps per pose "
+                    f"of '{o.name}'"
+                )
+    if plan.check_every > plan.horizon and plan.check_methods:
+        # No check would happen: record none rather than refuse.
+        plan.check_methods = ()
+
+
+# ======================================================================== devices
+def _devices(n: int | None):
+    import jax
+
+    local = jax.local_devices()
+    if n is not None and n > len(local):
+        raise SweepError(
+            f"--devices {n}: only {len(local)} local device(s) "
+            f"({local[0].platform}) are available"
+        )
+    return local[: n or len(local)]
+
+
+def _device_info(devices) -> dict[str, Any]:
+    return {
+        "platform": devices[0].platform,
+        "kind": devices[0].device_kind,
+        "count": len(devices),
+    }
+
+
+def _versions() -> dict[str, str]:
+    out = {"python": platform.python_version()}
+    for pkg in ("legs_jax", "jax", "jaxlib", "numpy", "scipy", "pandas", "pyarrow"):
+        try:
+            out[pkg] = importlib.metadata.version(pkg)
+        except importlib.metadata.PackageNotFoundError:
+            out[pkg] = "not installed"
+    return out
+
+
+def _git_commit() -> dict[str, Any]:
+    root = Path(__file__).resolve().parent.parent
+    try:
+        commit = subprocess.run(
+            ["git", "rev-parse", "HEAD"],
+            cwd=root,
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
+        if commit.returncode != 0:
+            return {"commit": None}
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=root,
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
+        return {"commit": commit.stdout.strip(), "dirty": bool(dirty.stdout.strip())}
+    except (OSError, subprocess.SubprocessError):
+        return {"commit": None}
+
+
+# ====================================================================== execution
+def _engine():
+    """The rollout engine module (imported late: JAX must start after the device
+    flags are set)."""
+    from legs_jax import engine
+
+    return engine
+
+
+class _ProblemCache:
+    """Loaded problems, least recently used first out."""
+
+    def __init__(self, capacity: int = 16):
+        self.capacity = capacity
+        self._items: OrderedDict[str, Any] = OrderedDict()
+
+    def get(self, path: str):
+        from legs_jax import problem as problem_mod
+
+        if path in self._items:
+            self._items.move_to_end(path)
+            return self._items[path]
+        pb = problem_mod.load(path)
+        self._items[path] = pb
+        while len(self._items) > self.capacity:
+            self._items.popitem(last=False)
+        return pb
+
+
+def _run_chunk(
+    plan: ExperimentPlan,
+    chunk: Chunk,
+    cache: _ProblemCache,
+    devices,
+    progress: Callable[[float], None] | None,
+):
+    """Compute one chunk; returns its tables."""
+    from legs_jax import problem as problem_mod
+
+    arm = plan.arms[chunk.arm]
+    objs = [plan.objects[i] for i in chunk.objects]
+    problems = [cache.get(o.path) for o in objs]
+    batch = problem_mod.stack(
+        problems,
+        num_poses=chunk.num_poses,
+        num_grasps=chunk.num_grasps,
+        num_trials=max(chunk.trials) + 1,
+    )
+    t = np.asarray(chunk.trials)
+    batch = dataclasses.replace(
+        batch,
+        robustness=batch.robustness[:, t],
+        prior=batch.prior[:, t],
+        valid=batch.valid[:, t],
+    )
+    result = _engine().run(
+        batch,
+        arm.method,
+        object_ids=[o.object_id for o in objs],
+        trials=list(chunk.trials),
+        num_rollouts=plan.rollouts,
+        horizon=plan.horizon,
+        hparams=arm.engine_hparams(),
+        seed=plan.seed,
+        record_every=plan.record_every,
+        check_every=plan.check_every,
+        stop_variant_attempted=True,
+        record_active_set=chunk.record_active_set,
+        devices=devices,
+        progress=progress,
+    )
+    ctx = res.ChunkContext(
+        experiment=plan.name,
+        method=arm.method,
+        variant=arm.variant,
+        grid=arm.grid_dicts(),
+        objects=[(o.name, o.set) for o in objs],
+        trials=chunk.trials,
+        rollouts=range(plan.rollouts),
+        seed=plan.seed,
+        horizon=plan.horizon,
+        record_checks=chunk.record_checks,
+        record_active_set=chunk.record_active_set,
+        robustness=batch.robustness,
+    )
+    return res.chunk_tables(result, ctx), np.asarray(result.curve_steps).tolist()
+
+
+class _Progress:
+    """tqdm bar over estimated work, showing rollouts per second and the ETA."""
+
+    def __init__(self, total_work: float, total_rollouts: int, quiet: bool, desc: str):
+        from tqdm.auto import tqdm
+
+        self.total_rollouts = total_rollouts
+        self.rollouts = 0
+        self.start = time.perf_counter()
+        self._chunk_base = 0.0
+        self._chunk_work = 0.0
+        self._shown = 0.0
+        self.bar = tqdm(
+            total=max(total_work, 1.0),
+            disable=quiet,
+            desc=desc,
+            bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}<{remaining}, "
+            "{postfix}",
+            dynamic_ncols=True,
+            mininterval=0.5,
+        )
+        self._postfix()
+
+    def _postfix(self) -> None:
+        dt = time.perf_counter() - self.start
+        rate = self.rollouts / dt if dt > 0 else 0.0
+        self.bar.set_postfix_str(
+            f"{self.rollouts}/{self.total_rollouts} rollouts, {rate:.1f} rollouts/s",
+            refresh=False,
+        )
+
+    def begin_chunk(self, work: float) -> None:
+        self._chunk_base = self._shown
+        self._chunk_work = work
+
+    def fraction(self, f: float) -> None:
+        """Within-chunk progress in [0, 1] (from the engine)."""
+        target = self._chunk_base + self._chunk_work * min(max(float(f), 0.0), 1.0)
+        if target > self._shown:
+            self.bar.update(target - self._shown)
+            self._shown = target
+
+    def end_chunk(self, rollouts: int) -> None:
+        self.fraction(1.0)
+        self.rollouts += rollouts
+        self._postfix()
+        self.bar.refresh()
+
+    def skip(self, work: float) -> None:
+        self.bar.total = max(self.bar.total - work, 1.0)
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+def _engine_progress(bar: _Progress) -> Callable[..., None]:
+    def cb(done, total=None):
+        f = done if total is None else done / max(total, 1)
+        bar.fraction(f)
+
+    return cb
+
+
+# ------------------------------------------------------------------ output folders
+def _exp_dir(out: Path, name: str) -> Path:
+    return out / name
+
+
+def _prepare_dir(plan: ExperimentPlan, out: Path, overwrite: bool, leader: bool):
+    """Check existing results against the configuration; delete them when asked."""
+    d = _exp_dir(out, plan.name)
+    manifest = d / "manifest.json"
+    chash = res.config_hash(plan.config())
+    if overwrite:
+        if not leader or not d.exists():
+            return d, chash
+        for f in ("manifest.json", *(f"{t}.parquet" for t in _FINAL_TABLES)):
+            if (d / f).exists():
+                (d / f).unlink()
+        if (d / "chunks").exists():
+            shutil.rmtree(d / "chunks")
+        return d, chash
+    if manifest.is_file():
+        import json
+
+        with open(manifest) as fh:
+            old = json.load(fh)
+        if old.get("config_hash") != chash:
+            diff = _config_diff(old.get("config", {}), plan.config())
+            raise SweepError(
+                f"{d} holds results of a different configuration (differs in: "
+                f"{diff}); pass --overwrite to replace them or --out for another folder"
+            )
+    # Finished chunks of this plan must match it.
+    chunks_dir = d / "chunks"
+    for c in plan.chunks:
+        if res.chunk_done(chunks_dir, c.id):
+            meta = res.read_chunk_meta(chunks_dir, c.id)
+            if meta.get("hash") != c.hash:
+                raise SweepError(
+                    f"{chunks_dir / c.id} was made with a different configuration; "
+                    "pass --overwrite to replace the results"
+                )
+    return d, chash
+
+
+def _config_diff(old: Mapping[str, Any], new: Mapping[str, Any]) -> str:
+    keys = sorted(set(old) | set(new))
+    diff = [k for k in keys if res._canonical(old.get(k)) != res._canonical(new.get(k))]
+    return ", ".join(diff) or "unknown"
+
+
+_FINAL_TABLES = (
+    "runs",
+    "curves",
+    "checks",
+    "active_set",
+    "grasps",
+    "objects",
+)
+
+
+def _write_manifest(
+    plan: ExperimentPlan,
+    d: Path,
+    status: str,
+    session: dict[str, Any],
+) -> None:
+    import json
+
+    chunks_dir = d / "chunks"
+    chunks = {}
+    for c in plan.chunks:
+        if res.chunk_done(chunks_dir, c.id):
+            m = res.read_chunk_meta(chunks_dir, c.id)
+            chunks[c.id] = {
+                k: m.get(k)
+                for k in (
+                    "wall_s",
+                    "rollouts",
+                    "device",
+                    "host",
+                    "process_id",
+                    "finished",
+                )
+            }
+    old_sessions = []
+    mf = d / "manifest.json"
+    if mf.is_file():
+        with open(mf) as fh:
+            try:
+                old_sessions = json.load(fh).get("sessions", [])
+            except json.JSONDecodeError:
+                old_sessions = []
+    sessions = [s for s in old_sessions if s.get("id") != session["id"]] + [session]
+    manifest = {
+        "experiment": plan.name,
+        "description": plan.description,
+        "status": status,
+        "config": plan.config(),
+        "config_hash": res.config_hash(plan.config()),
+        "problem_files": {
+            o.name: {"path": o.path, "sha256": o.sha256} for o in plan.objects
+        },
+        "seeds": {
+            "seed": plan.seed,
+            "rollout_key": "fold_in(fold_in(fold_in(key(seed), object_id), trial), "
+            "rollout)",
+            "object_ids": {o.name: o.object_id for o in plan.objects},
+        },
+        "git": _git_commit(),
+        "versions": _versions(),
+        "chunks_total": len(plan.chunks),
+        "chunks_done": len(chunks),
+        "chunks": chunks,
+        "wall_s_chunks": float(sum(c["wall_s"] or 0.0 for c in chunks.values())),
+        "sessions": sessions,
+        "curves": "aggregated: mean and standard error over the T x R runs of each "
+        "object, method, variant and hyperparameters; per-run curves are in the "
+        "gap_curve column of chunks/*/runs.parquet",
+        "extra": plan.extra,
+    }
+    res.atomic_write_json(manifest, mf)
+
+
+def _merge(plan: ExperimentPlan, d: Path) -> dict[str, int]:
+    """Write the final tables of a complete experiment; returns their row counts."""
+    import pandas as pd
+
+    chunks_dir = d / "chunks"
+    tables = res.merge_chunks(
+        chunks_dir,
+        [c.id for c in plan.chunks],
+        [(a.method, a.variant) for a in plan.arms],
+        [o.name for o in plan.objects],
+    )
+    for name, df in tables.items():
+        res.atomic_write_parquet(df, d / f"{name}.parquet")
+    objects = pd.DataFrame(
+        {
+            "object": [o.name for o in plan.objects],
+            "set": [o.set for o in plan.objects],
+            "object_id": np.array([o.object_id for o in plan.objects], np.int64),
+            "num_poses": np.array([o.num_poses for o in plan.objects], np.int64),
+            "num_grasps": np.array([o.num_grasps for o in plan.objects], np.int64),
+            "problem_file": [o.path for o in plan.objects],
+            "sha256": [o.sha256 for o in plan.objects],
+        }
+    )
+    res.atomic_write_parquet(objects, d / "objects.parquet")
+    if plan.active_set_methods:
+        res.atomic_write_parquet(_grasps_table(plan), d / "grasps.parquet")
+    return {k: len(v) for k, v in tables.items()}
+
+
+def _grasps_table(plan: ExperimentPlan):
+    """Ground truth and prior of trial 0's reservoir of each object (histograms)."""
+    import pandas as pd
+
+    from legs_jax import problem as problem_mod
+
+    frames = []
+    for o in plan.objects:
+        pb = problem_mod.load(o.path)
+        p, g = np.nonzero(pb.valid[0])
+        frames.append(
+            pd.DataFrame(
+                {
+                    "object": o.name,
+                    "trial": np.zeros(len(p), np.int64),
+                    "pose": p.astype(np.int64),
+                    "grasp": g.astype(np.int64),
+                    "landing": pb.landing[p].astype(np.float64),
+                    "robustness": pb.robustness[0][p, g].astype(np.float64),
+                    "prior": pb.prior[0][p, g].astype(np.float64),
+                }
+            )
+        )
+    return pd.concat(frames, ignore_index=True)
+
+
+# ============================================================================ main
+@dataclasses.dataclass
+class _Dist:
+    num_processes: int = 1
+    process_id: int = 0
+
+    @property
+    def leader(self) -> bool:
+        return self.process_id == 0
+
+
+def _init_distributed(a: argparse.Namespace) -> _Dist:
+    if a.coordinator is None:
+        return _Dist()
+    import jax
+
+    jax.distributed.initialize(
+        coordinator_address=a.coordinator,
+        num_processes=a.num_processes,
+        process_id=a.process_id,
+    )
+    return _Dist(a.num_processes, a.process_id)
+
+
+def _barrier(dist: _Dist, name: str) -> None:
+    if dist.num_processes == 1:
+        return
+    from jax._src import distributed
+
+    client = distributed.global_state.client
+    if client is not None:
+        client.wait_at_barrier(name, timeout_in_ms=7 * 24 * 3600 * 1000)
+
+
+def _say(msg: str, quiet: bool = False) -> None:
+    if not quiet:
+        print(msg, file=sys.stderr, flush=True)
+
+
+def run_experiment(
+    plan: ExperimentPlan,
+    out: Path,
+    *,
+    devices,
+    dist: _Dist,
+    quiet: bool,
+) -> str:
+    """Run the missing chunks of one experiment and merge when complete.
+
+    Returns "complete", "partial" (other processes' chunks missing) or raises
+    KeyboardInterrupt after saving what was finished.
+    """
+    d = _exp_dir(out, plan.name)
+    chunks_dir = d / "chunks"
+    chunks_dir.mkdir(parents=True, exist_ok=True)
+    res.clean_stale_tmp(chunks_dir)
+    session = {
+        "id": f"{socket.gethostname()}-{os.getpid()}-{int(time.time())}",
+        "host": socket.gethostname(),
+        "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "devices": _device_info(devices),
+        "process_id": dist.process_id,
+        "num_processes": dist.num_processes,
+    }
+    if dist.leader:
+        _write_manifest(plan, d, "running", session)
+    mine = [
+        c
+        for i, c in enumerate(plan.chunks)
+        if i % dist.num_processes == dist.process_id
+    ]
+    todo = [c for c in mine if not res.chunk_done(chunks_dir, c.id)]
+    # Work order: objects outer, arms inner, so loaded problems are reused.
+    todo.sort(key=lambda c: (c.objects[0], c.trials[0], c.arm))
+    done_before = len(plan.chunks) - sum(
+        1 for c in plan.chunks if not res.chunk_done(chunks_dir, c.id)
+    )
+    if todo:
+        _say(
+            f"{plan.name}: {len(todo)} chunk(s) to run ({done_before} of "
+            f"{len(plan.chunks)} already done), {sum(c.rollouts for c in todo)} "
+            f"rollouts on {len(devices)} {devices[0].device_kind} device(s)",
+            quiet,
+        )
+    bar = _Progress(
+        sum(c.work for c in todo),
+        sum(c.rollouts for c in todo),
+        quiet or not todo,
+        plan.name,
+    )
+    cache = _ProblemCache()
+    t_session = time.perf_counter()
+    computed = 0
+    try:
+        for c in todo:
+            if res.chunk_done(chunks_dir, c.id):  # finished by another process
+                bar.skip(c.work)
+                continue
+            bar.begin_chunk(c.work)
+            t0 = time.perf_counter()
+            tables, curve_steps = _run_chunk(
+                plan, c, cache, devices, _engine_progress(bar)
+            )
+            wall = time.perf_counter() - t0
+            meta = {
+                "id": c.id,
+                "hash": c.hash,
+                "experiment": plan.name,
+                "arm": plan.arms[c.arm].label,
+                "objects": [plan.objects[i].name for i in c.objects],
+                "trials": list(c.trials),
+                "rollouts": c.rollouts,
+                "curve_steps": curve_steps,
+                "wall_s": wall,
+                "device": _device_info(devices),
+                "host": socket.gethostname(),
+                "process_id": dist.process_id,
+                "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            }
+            res.write_chunk(chunks_dir, c.id, tables, meta)
+            computed += 1
+            bar.end_chunk(c.rollouts)
+    except KeyboardInterrupt:
+        bar.close()
+        n_done = sum(1 for c in plan.chunks if res.chunk_done(chunks_dir, c.id))
+        session["ended"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+        session["wall_s"] = time.perf_counter() - t_session
+        session["chunks_computed"] = computed
+        if dist.leader:
+            _write_manifest(plan, d, "interrupted", session)
+        _say(
+            f"\ninterrupted: {plan.name} kept {n_done} of {len(plan.chunks)} finished "
+            f"chunk(s) in {chunks_dir} ({computed} computed now); the chunk in "
+            "flight was dropped. Run the same command again to resume."
+        )
+        raise
+    bar.close()
+    session["ended"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+    session["wall_s"] = time.perf_counter() - t_session
+    session["chunks_computed"] = computed
+    _barrier(dist, f"legs_jax-sweep-{plan.name}-done")
+    if not dist.leader:
+        return "partial"
+    missing = [c.id for c in plan.chunks if not res.chunk_done(chunks_dir, c.id)]
+    if missing:
+        _write_manifest(plan, d, "incomplete", session)
+        _say(
+            f"{plan.name}: {len(missing)} chunk(s) of other processes are not in "
+            f"{chunks_dir}; copy every host's chunks there and run this command "
+            "again without --coordinator to merge",
+        )
+        return "partial"
+    counts = _merge(plan, d)
+    _write_manifest(plan, d, "complete", session)
+    _say(
+        f"{plan.name}: complete -> {d} ("
+        + ", ".join(f"{k} {v} rows" for k, v in counts.items())
+        + ")",
+        quiet,
+    )
+    return "complete"
+
+
+def _print_plan(plan: ExperimentPlan, out: Path) -> None:
+    d = _exp_dir(out, plan.name)
+    done = sum(1 for c in plan.chunks if res.chunk_done(d / "chunks", c.id))
+    print(
+        f"{plan.name}: {len(plan.objects)} object(s), {len(plan.arms)} arm(s), "
+        f"T={plan.trials} R={plan.rollouts} H={plan.horizon}, "
+        f"{len(plan.chunks)} chunk(s) ({done} done), "
+        f"{plan.total_rollouts} rollouts -> {d}"
+    )
+    for c in plan.chunks:
+        print(f"  {c.id}: {c.rollouts} rollouts, P={c.num_poses} K={c.num_grasps}")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    a = parser.parse_args(argv)
+    _validate_args(parser, a)
+    _set_device_flags(a.devices)
+    out = Path(a.out or ("results/_scratch/smoke" if a.smoke else "results"))
+    names = (
+        list(EXPERIMENTS)
+        if (a.all or (a.smoke and not a.experiment))
+        else list(dict.fromkeys(a.experiment))
+    )
+    try:
+        from legs_jax.errors import ConfigError
+        from legs_jax.problem import ProblemFileError
+
+        dist = _init_distributed(a)
+        devices = _devices(a.devices)
+        catalog = _catalog()
+        plans = []
+        for name in names:
+            plan = _experiment_plan(name, a, catalog, out)
+            if plan is None:
+                _say(f"{name}: none of the selected methods; skipped", a.quiet)
+                continue
+            plans.append(plan)
+        if not plans:
+            raise SweepError("no experiment left to run with the selected methods")
+        if a.dry_run:
+            for plan in plans:
+                _print_plan(plan, out)
+            return 0
+        # Refuse conflicting results of any experiment before running anything
+        # (or, with --overwrite, delete them: the leader does, the others wait).
+        for plan in plans:
+            _prepare_dir(plan, out, a.overwrite, dist.leader)
+        _barrier(dist, "legs_jax-sweep-setup")
+        t0 = time.perf_counter()
+        statuses = {}
+        for plan in plans:
+            statuses[plan.name] = run_experiment(
+                plan,
+                out,
+                devices=devices,
+                dist=dist,
+                quiet=a.quiet,
+            )
+        _say(f"done in {time.perf_counter() - t0:.1f} s: {statuses}", a.quiet)
+        return 0
+    except KeyboardInterrupt:
+        return 130
+    except (SweepError, ConfigError, ProblemFileError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

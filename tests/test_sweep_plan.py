@@ -1,0 +1,488 @@
+"""Sweep bookkeeping: experiment specs, chunk plans, tables, merging, resuming.
+
+These tests replace the rollout engine by ``sweep_fakes.fake_run`` (results of the
+engine's shapes that depend only on seed, object, trial, rollout and
+hyperparameters), so they check the sweep machinery alone, in milliseconds. The
+real engine runs in ``test_sweep.py``.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import os
+import types
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import sweep_fakes
+
+import sweeps
+from legs_jax import problem, results, sweep, synthetic
+
+
+# ---------------------------------------------------------------------- helpers
+@pytest.fixture
+def fake_engine(monkeypatch):
+    calls = []
+    eng = types.SimpleNamespace(
+        run=functools.partial(sweep_fakes.fake_run, calls=calls)
+    )
+    monkeypatch.setattr(sweep, "_engine", lambda: eng)
+    return calls
+
+
+def _problems(folder: Path, specs) -> list[str]:
+    paths = []
+    for name, poses, grasps in specs:
+        pb = synthetic.make_problem(
+            seed=len(paths), num_poses=poses, num_grasps=grasps, num_trials=3, name=name
+        )
+        paths.append(str(problem.save(pb, folder / f"{name}.npz")))
+    return paths
+
+
+def _plan(objects, arms, trials=3, rollouts=2, horizon=300, check_methods=("legs",)):
+    plan = sweep.ExperimentPlan(
+        name="main",
+        description="test",
+        objects=objects,
+        arms=[sweep.make_arm(*a) for a in arms],
+        trials=trials,
+        rollouts=rollouts,
+        horizon=horizon,
+        record_every=10,
+        check_every=100,
+        check_methods=check_methods,
+        active_set_methods=(),
+        seed=0,
+        smoke=False,
+    )
+    return plan
+
+
+def _obj(name, P, K, T=10, oid=None):
+    return sweep.ObjectEntry(
+        name=name,
+        set="s",
+        object_id=oid if oid is not None else len(name),
+        path=f"{name}.npz",
+        sha256="0" * 64,
+        num_poses=P,
+        num_grasps=K,
+        num_trials=T,
+    )
+
+
+def _read_all(folder: Path) -> dict[str, bytes]:
+    return {
+        p.relative_to(folder).as_posix(): p.read_bytes()
+        for p in sorted(folder.rglob("*.parquet"))
+        if "chunks" not in p.parts
+    }
+
+
+# ------------------------------------------------------------------ experiments
+@pytest.mark.parametrize("name", sweeps.EXPERIMENTS)
+def test_experiment_modules_declare_valid_arms(name):
+    mod = sweeps.get(name)
+    assert mod.NAME == name
+    arms = [sweep.make_arm(*a) for a in mod.ARMS]
+    assert arms
+    assert set(mod.CHECK_METHODS) <= {a.method for a in arms}
+    assert mod.TRIALS == 10 and mod.ROLLOUTS == 10 and mod.HORIZON == 3000
+    assert 1 <= len(mod.SMOKE_OBJECTS) <= 2
+
+
+def test_paper_grids_and_extra_row():
+    main = [sweep.make_arm(*a) for a in sweeps.get("main").ARMS]
+    assert {a.method for a in main} == set(sweep.METHODS)
+    orig = [a for a in main if a.variant == "orig_prior"]
+    assert len(orig) == 1 and orig[0].method == "borges_2000"
+    assert dict(orig[0].grid[0])["prior_offset"] == 0.0
+    assert dict(orig[0].grid[0])["s"] == 5.0
+    (ps,) = [sweep.make_arm(*a) for a in sweeps.get("prior_strength").ARMS]
+    assert [dict(g)["s"] for g in ps.grid] == [0, 1, 2, 3, 4, 5]
+    assert {dict(g)["delta"] for g in ps.grid} == {0.07}
+    (cf,) = [sweep.make_arm(*a) for a in sweeps.get("confidence").ARMS]
+    assert [dict(g)["delta"] for g in cf.grid] == [0.01, 0.05, 0.10, 0.15, 0.20, 0.25]
+    assert {dict(g)["s"] for g in cf.grid} == {1.0}
+    assert sweeps.get("case_study").OBJECTS == (
+        "climbing_hold",
+        "C3",
+        "F6",
+        "turbine_housing",
+    )
+
+
+def test_methods_and_defaults_match_the_engine_contract():
+    from legs_jax import reference
+
+    assert sweep.METHODS == reference.METHODS
+    assert sweep.HPARAM_DEFAULTS == reference.HPARAM_DEFAULTS
+
+
+@pytest.mark.parametrize(
+    "hp, match",
+    [
+        ({"delta": 0.0}, "delta"),
+        ({"delta": 1.0}, "delta"),
+        ({"gamma": 1.5}, "gamma"),
+        ({"s": -1.0}, "s must be"),
+        ({"epsilon": 1.1}, "epsilon"),
+        ({"k": 0}, "k must be"),
+        ({"k": (50, 100)}, "static"),
+        ({"s": (1.0, 2.0), "delta": (0.1,)}, "differ in length"),
+        ({"bogus": 1}, "unknown hyperparameter"),
+    ],
+)
+def test_make_arm_refuses_bad_hyperparameters(hp, match):
+    with pytest.raises(sweep.SweepError, match=match):
+        sweep.make_arm("legs", "", hp)
+
+
+def test_make_arm_zips_grids():
+    arm = sweep.make_arm("legs", "", {"s": (0.0, 2.0), "delta": (0.1, 0.2), "k": 50})
+    pts = arm.grid_dicts()
+    assert [(p["s"], p["delta"], p["k"], p["gamma"]) for p in pts] == [
+        (0.0, 0.1, 50, 0.2),
+        (2.0, 0.2, 50, 0.2),
+    ]
+
+
+# -------------------------------------------------------------------- chunking
+def test_plan_covers_every_run_once_and_is_deterministic():
+    objects = [
+        _obj("a", 3, 2000),
+        _obj("b", 5, 2000),
+        _obj("c", 4, 2000),
+        _obj("d", 12, 2000),
+        *(_obj(n, 4, 2000) for n in "efgh"),
+    ]
+    arms = [("dexnet", "", {}), ("borges_2000", "", {}), ("legs", "", {})]
+    plan = _plan(objects, arms, trials=10, rollouts=10, horizon=3000)
+    chunks = sweep.plan_chunks(plan)
+    again = sweep.plan_chunks(
+        _plan(objects, arms, trials=10, rollouts=10, horizon=3000)
+    )
+    assert [(c.id, c.hash) for c in chunks] == [(c.id, c.hash) for c in again]
+    assert len({c.id for c in chunks}) == len(chunks)
+    seen = set()
+    for c in chunks:
+        for o in c.objects:
+            # An object shares a chunk only with objects of its padded shape.
+            assert c.num_poses == sweep._pose_bucket(objects[o].num_poses)
+            for t in c.trials:
+                key = (c.arm, o, t)
+                assert key not in seen
+                seen.add(key)
+    assert seen == {(a, o, t) for a in range(3) for o in range(8) for t in range(10)}
+    # Work per chunk respects the budget unless a single trial is already bigger.
+    for c in chunks:
+        assert c.work <= sweep.WORK_BUDGET or len(c.trials) == 1
+    # K=2000 methods get smaller chunks than the constant rows.
+    n_by_arm = {a: sum(1 for c in chunks if c.arm == a) for a in range(3)}
+    assert n_by_arm[1] > n_by_arm[0]
+
+
+def test_plan_splits_trials_when_one_object_is_too_big():
+    plan = _plan([_obj("a", 4, 2000)], [("borges_2000", "", {})], trials=10)
+    per_trial = 2 * sweep._rollout_work("borges_2000", 100, 4, 2000, 300, 100)
+    chunks = sweep.plan_chunks(plan, work_budget=3.5 * per_trial)
+    sizes = [len(c.trials) for c in chunks]
+    assert len(chunks) > 1 and sum(sizes) == 10 and max(sizes) - min(sizes) <= 1
+    assert sizes == [3, 3, 2, 2]
+    assert [c.trials[0] for c in chunks] == [0, 3, 6, 8]
+
+
+def test_chunk_hash_depends_on_results_inputs_only():
+    a = sweep.plan_chunks(_plan([_obj("a", 4, 200)], [("legs", "", {})]))
+    b = sweep.plan_chunks(_plan([_obj("a", 4, 200)], [("legs", "", {})], horizon=200))
+    c = sweep.plan_chunks(_plan([_obj("a", 4, 200)], [("legs", "", {"s": 2.0})]))
+    assert a[0].id == b[0].id == c[0].id
+    assert len({a[0].hash, b[0].hash, c[0].hash}) == 3
+
+
+# --------------------------------------------------------------------- tables
+def _ctx(grid_points=1, trials=(0, 1), rollouts=2, **kw):
+    grid = [dict(sweep.HPARAM_DEFAULTS, s=float(g)) for g in range(grid_points)]
+    return results.ChunkContext(
+        experiment="main",
+        method="legs",
+        variant="",
+        grid=grid,
+        objects=[("x", "dexnet_adv"), ("y", "egad_eval")],
+        trials=trials,
+        rollouts=range(rollouts),
+        seed=3,
+        horizon=300,
+        record_checks=True,
+        **kw,
+    )
+
+
+def _fake_batch(O=2, T=2, P=3, K=20):  # noqa: E741
+    return types.SimpleNamespace(
+        robustness=np.random.default_rng(0).random((O, T, P, K)).astype(np.float32),
+        pose_valid=np.ones((O, P), bool),
+    )
+
+
+def test_chunk_tables_rows_match_arrays():
+    batch = _fake_batch()
+    out = sweep_fakes.fake_run(
+        batch,
+        "legs",
+        object_ids=[7, 8],
+        trials=[0, 1],
+        num_rollouts=2,
+        horizon=300,
+        hparams={"s": (0.0, 1.0)},
+        record_active_set=True,
+    )
+    ctx = _ctx(2, record_active_set=True, robustness=batch.robustness)
+    t = results.chunk_tables(out, ctx)
+    runs, checks, act = t["runs"], t["checks"], t["active_set"]
+    assert len(runs) == 2 * 2 * 2 * 2
+    row = runs[(runs.object == "y") & (runs.trial == 1) & (runs.rollout == 0)]
+    row = row[row.s == 1.0].iloc[0]
+    assert row.final_gap == pytest.approx(float(out.final_gap[1, 1, 1, 0]))
+    assert row.successes == out.successes[1, 1, 1, 0]
+    assert row["set"] == "egad_eval" and row.seed == 3 and row.horizon == 300
+    np.testing.assert_array_equal(row.gap_curve, out.gap_curve[1, 1, 1, 0])
+    assert len(checks) == 16 * 3 and set(checks.step) == {100, 200, 300}
+    c = checks[(checks.object == "x") & (checks.trial == 0) & (checks.rollout == 1)]
+    c = c[(c.s == 0.0) & (c.step == 200)].iloc[0]
+    assert c.p_lower == pytest.approx(float(out.check_p_lower[0, 0, 0, 1, 1]))
+    assert c.p_lower_attempted == pytest.approx(
+        float(out.check_p_lower_attempted[0, 0, 0, 1, 1])
+    )
+    # Active set: trial 0, rollout 0 only, filled slots only, with their p.
+    assert set(act.trial) == {0} and set(act.rollout) == {0}
+    a = out.active_set[0, 1, 0, 0]
+    assert (act.grid_index == 0).sum() // 1 >= 1
+    sub = act[(act.object == "y") & (act.grid_index == 0)]
+    assert len(sub) == int((a >= 0).sum())
+    r = sub.iloc[0]
+    step_i = [100, 200, 300].index(r.step)
+    assert a[step_i, r.pose, r.slot] == r.grasp
+    assert r.robustness == pytest.approx(batch.robustness[1, 0, r.pose, r.grasp])
+
+
+def test_merge_aggregates_curves_and_ignores_chunking(tmp_path):
+    batch = _fake_batch(O=2, T=4)
+    kw = dict(object_ids=[7, 8], num_rollouts=3, horizon=300, hparams={"s": 1.0})
+    whole = sweep_fakes.fake_run(batch, "legs", trials=[0, 1, 2, 3], **kw)
+    arms, objs = [("legs", "")], ["x", "y"]
+
+    def write(folder, splits):
+        ids = []
+        for i, trials in enumerate(splits):
+            out = sweep_fakes.fake_run(batch, "legs", trials=list(trials), **kw)
+            ctx = _ctx(trials=trials, rollouts=3)
+            tables = results.chunk_tables(out, ctx)
+            meta = {"curve_steps": out.curve_steps.tolist()}
+            results.write_chunk(folder, f"c{i}", tables, meta)
+            ids.append(f"c{i}")
+        return results.merge_chunks(folder, ids[::-1], arms, objs)
+
+    one = write(tmp_path / "a", [(0, 1, 2, 3)])
+    two = write(tmp_path / "b", [(2, 3), (0, 1)])
+    for name in ("runs", "curves", "checks"):
+        pd.testing.assert_frame_equal(one[name], two[name])
+    runs, curves = one["runs"], one["curves"]
+    assert list(runs.columns[:5]) == [
+        "experiment",
+        "set",
+        "object",
+        "method",
+        "variant",
+    ]
+    assert list(runs.trial[:3]) == [0, 0, 0] and list(runs.rollout[:3]) == [0, 1, 2]
+    # Mean and standard error of object y over its 4 x 3 runs, from the arrays.
+    y = whole.gap_curve[0, 1].reshape(12, -1).astype(np.float64)
+    cy = curves[curves.object == "y"]
+    assert list(cy.step) == list(range(0, 301, 10))
+    np.testing.assert_allclose(cy.gap_mean, y.mean(0), rtol=1e-12)
+    np.testing.assert_allclose(cy.gap_se, y.std(0, ddof=1) / np.sqrt(12), rtol=1e-12)
+    assert set(cy.n_runs) == {12}
+
+
+def test_write_chunk_is_atomic(tmp_path, monkeypatch):
+    df = pd.DataFrame({"a": [1, 2]})
+    calls = {"n": 0}
+    real = results.atomic_write_json
+
+    def boom(obj, path):
+        calls["n"] += 1
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(results, "atomic_write_json", boom)
+    with pytest.raises(KeyboardInterrupt):
+        results.write_chunk(tmp_path, "c0", {"runs": df}, {"x": 1})
+    assert calls["n"] == 1
+    assert list(tmp_path.iterdir()) == []  # nothing half-written is left
+    monkeypatch.setattr(results, "atomic_write_json", real)
+    assert results.write_chunk(tmp_path, "c0", {"runs": df}, {"x": 1})
+    assert results.chunk_done(tmp_path, "c0")
+    assert not results.write_chunk(tmp_path, "c0", {"runs": df}, {"x": 1})
+
+
+# ------------------------------------------------------------------- CLI, fake
+def _cli(args, capsys):
+    code = sweep.main([*args, "--quiet"])
+    return code, capsys.readouterr().err
+
+
+@pytest.fixture
+def probs(tmp_path):
+    return _problems(tmp_path, [("alpha", 3, 200), ("beta", 5, 200)])
+
+
+def test_cli_runs_and_writes_schema(tmp_path, probs, fake_engine, capsys):
+    out = tmp_path / "out"
+    args = ["--experiment", "main", "--problems", *probs, "--out", str(out)]
+    code, err = _cli(
+        [*args, "--trials", "2", "--rollouts", "2", "--horizon", "200"], capsys
+    )
+    assert code == 0, err
+    d = out / "main"
+    runs = pd.read_parquet(d / "runs.parquet")
+    need = ["experiment", "set", "object", "method", "variant", "trial", "rollout"]
+    need += ["seed", *results.HPARAM_COLUMNS, "horizon", "final_gap"]
+    need += ["final_performance", "successes", "distinct_grasps", "replacements"]
+    assert list(runs.columns) == need
+    assert len(runs) == 8 * 2 * 2 * 2  # arms x objects x trials x rollouts
+    orig = runs[runs.variant == "orig_prior"]
+    assert set(orig.method) == {"borges_2000"} and set(orig.prior_offset) == {0.0}
+    curves = pd.read_parquet(d / "curves.parquet")
+    assert set(curves.n_runs) == {4} and len(curves) == 8 * 2 * 21
+    checks = pd.read_parquet(d / "checks.parquet")
+    assert set(checks.method) == {"legs"} and len(checks) == 2 * 2 * 2 * 2
+    man = json.loads((d / "manifest.json").read_text())
+    assert man["status"] == "complete"
+    assert man["chunks_done"] == man["chunks_total"] == len(man["chunks"])
+    assert all(c["wall_s"] >= 0 for c in man["chunks"].values())
+    sha = results.sha256_file(probs[0])
+    assert man["problem_files"]["alpha"]["sha256"] == sha
+    assert man["versions"]["jax"] and man["sessions"][0]["devices"]["count"] >= 1
+    assert "commit" in man["git"]
+
+
+def test_cli_resume_after_interrupt_equals_uninterrupted(
+    tmp_path, probs, fake_engine, capsys, monkeypatch
+):
+    base = ["--experiment", "main", "--problems", *probs, "--trials", "2"]
+    base += ["--rollouts", "2", "--horizon", "200"]
+    code, err = _cli([*base, "--out", str(tmp_path / "ref")], capsys)
+    assert code == 0, err
+
+    real = sweep._run_chunk
+    n = {"chunks": 0}
+
+    def interrupt_third(*a, **k):
+        n["chunks"] += 1
+        if n["chunks"] == 3:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(sweep, "_run_chunk", interrupt_third)
+    code, err = _cli([*base, "--out", str(tmp_path / "res")], capsys)
+    assert code == 130
+    assert "kept 2 of" in err and "resume" in err
+    man = json.loads((tmp_path / "res/main/manifest.json").read_text())
+    assert man["status"] == "interrupted" and man["chunks_done"] == 2
+    assert not (tmp_path / "res/main/runs.parquet").exists()
+    monkeypatch.setattr(sweep, "_run_chunk", real)
+    fake_engine.clear()
+    code, err = _cli([*base, "--out", str(tmp_path / "res")], capsys)
+    assert code == 0, err
+    assert len(fake_engine) == man["chunks_total"] - 2  # finished chunks skipped
+    assert _read_all(tmp_path / "res") == _read_all(tmp_path / "ref")
+
+
+def test_cli_refuses_other_config_without_overwrite(
+    tmp_path, probs, fake_engine, capsys
+):
+    base = [
+        "--experiment",
+        "confidence",
+        "--problems",
+        probs[0],
+        "--out",
+        str(tmp_path),
+    ]
+    base += ["--trials", "1", "--rollouts", "1"]
+    assert _cli([*base, "--horizon", "100"], capsys)[0] == 0
+    before = _read_all(tmp_path)
+    code, err = _cli([*base, "--horizon", "200"], capsys)
+    assert code == 2
+    assert (
+        "different configuration" in err and "horizon" in err and "--overwrite" in err
+    )
+    assert len(err.strip().splitlines()) == 1
+    assert _read_all(tmp_path) == before
+    code, err = _cli([*base, "--horizon", "200", "--overwrite"], capsys)
+    assert code == 0, err
+    curves = pd.read_parquet(tmp_path / "confidence/curves.parquet")
+    assert curves.step.max() == 200
+    assert sorted(set(curves.delta)) == [0.01, 0.05, 0.10, 0.15, 0.20, 0.25]
+
+
+@pytest.mark.parametrize(
+    "args, match",
+    [
+        (["--experiment", "mian"], "unknown experiment 'mian'.*did you mean main"),
+        (["--experiment", "main", "--methods", "leg"], "unknown method 'leg'"),
+        (["--experiment", "main", "--trials", "0"], "must be >= 1"),
+        (["--experiment", "main", "--horizon", "x"], "expected an integer"),
+        (["--experiment", "main", "--problems", "nope.npz"], "no such file"),
+        ([], "nothing to run"),
+        (["--all", "--experiment", "main"], "not both"),
+        (["--all", "--coordinator", "h:1"], "go together"),
+    ],
+)
+def test_cli_refuses_bad_arguments(args, match, capsys):
+    with pytest.raises(SystemExit) as e:
+        sweep.main(args)
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert pytest.importorskip("re").search(match, err), err
+
+
+def test_cli_refuses_bad_problem_and_too_many_trials(
+    tmp_path, probs, fake_engine, capsys, monkeypatch
+):
+    monkeypatch.setenv("XLA_FLAGS", os.environ.get("XLA_FLAGS", ""))
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"not a zip")
+    code, err = _cli(["--experiment", "main", "--problems", str(bad)], capsys)
+    assert code == 2 and "bad.npz" in err and len(err.strip().splitlines()) == 1
+    code, err = _cli(["--experiment", "main", "--problems", probs[0]], capsys)
+    assert code == 2 and "has 3 trials" in err
+    code, err = _cli(
+        ["--experiment", "main", "--problems", probs[0], "--devices", "999"], capsys
+    )
+    assert code == 2 and "--devices 999" in err
+
+
+def test_cli_methods_filter_and_skip(tmp_path, probs, fake_engine, capsys):
+    out = tmp_path / "out"
+    args = ["--all", "--problems", probs[0], "--methods", "tql", "--out", str(out)]
+    code, err = _cli(
+        [*args, "--trials", "1", "--rollouts", "1", "--horizon", "50"], capsys
+    )
+    assert code == 0, err
+    assert sorted(p.name for p in out.iterdir()) == ["case_study", "main"]
+    runs = pd.read_parquet(out / "main/runs.parquet")
+    assert set(runs.method) == {"tql"}
+
+
+def test_dry_run_prints_plan(tmp_path, probs, fake_engine, capsys):
+    args = ["--experiment", "prior_strength", "--problems", probs[0], "--dry-run"]
+    code = sweep.main([*args, "--out", str(tmp_path), "--trials", "3"])
+    out = capsys.readouterr().out
+    assert code == 0 and "prior_strength: 1 object(s)" in out and "180 rollouts" in out
+    assert not fake_engine and not (tmp_path / "prior_strength").exists()
