@@ -428,9 +428,9 @@ class _Environment:
 class _Method:
     """Per-rollout state of one method on one trial's reservoir.
 
-    ``cand`` [P, K] is the method's current candidate set of each pose; the
-    engine loop calls ``select``, ``update``, ``after_step``, ``recommend`` and
-    ``estimates``.
+    ``cand`` [P, K] is the method's current candidate set of each pose;
+    :func:`run_rollout` calls ``select``, ``update``, ``after_step``,
+    ``recommend`` and ``estimates``.
     """
 
     def __init__(self, problem: Problem, trial: int, hp: Mapping[str, Any]):
@@ -686,7 +686,8 @@ def run_rollout(
       ``check_true_performance`` [C2], ``active_set`` [C2, P, k] or None) and the
       trajectory: ``poses`` [H] (pose of each step), ``actions`` [H] (grasp, -1
       when the pose has none), ``rewards`` [H] bool, ``final_policy`` [P] and
-      ``removals``, the (step, pose, grasp) of every grasp LEGS(-AS) removed.
+      ``removals``, the (step, pose, grasp) of every grasp LEGS(-AS) removed, and
+      the final ``drop_counts`` c [P] and ``observed`` [P] of the stopping check.
     """
     _check_run_args(problem, horizon, record_every, check_every)
     hp = check_hparams(problem, method, hparams)
@@ -782,6 +783,8 @@ def run_rollout(
         rewards=rewards,
         final_policy=final_policy,
         removals=list(m.removal_log),
+        drop_counts=drops,
+        observed=observed,
     )
 
 
