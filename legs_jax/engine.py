@@ -1,0 +1,765 @@
+"""The rollout engine: every method of SPEC §4 on a batch of rollouts, in JAX.
+
+One engine owns the loop (a nested ``lax.scan``: checks → blocks of steps → steps),
+the environment of SPEC §2, the masks, the metrics of SPEC §5 and the counters;
+the methods (:mod:`legs_jax.methods`) are small pure functions over their own
+state. Every step is written with an explicit batch axis B (one row per rollout)
+and gathers only the current pose's row of the method's state.
+
+Hyperparameters s, prior_offset, δ, γ, ε and η are traced, one value per rollout,
+so a grid of them is part of the batch; k, n, K, P, H and the recording intervals
+set shapes and are static (one compile per distinct value and method).
+
+Rules of one step t = 1..H (the reference implementation follows the same):
+select a grasp of the current pose s → reward r = [u_r < p(s, a)] → update →
+LEGS(-AS) pruning of pose s if t ≡ 0 (mod n) → recommendation of s refreshed →
+transition (after a success a drop s' ~ λ, counted in c_{s'}; after a failure a
+topple s' ~ topple[s]). A pose with no valid grasp is a failed attempt that touches
+no grasp. The gap is recorded at step 0, every ``record_every`` steps and at H;
+the Dirichlet check runs every ``check_every`` steps.
+
+Dimension letters: G grid points, O objects, T trials, R rollouts, B rollouts of a
+mini-batch, N (object, trial) pairs, P poses, K grasps, k active-set size,
+C1 recorded gap steps, C2 checks.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import numbers
+from collections import Counter
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from legs_jax import keys as keys_mod
+from legs_jax import methods as methods_mod
+from legs_jax import sampling
+from legs_jax.errors import ConfigError
+from legs_jax.methods.base import (
+    Config,
+    Ctx,
+    HParams,
+    Method,
+    Tables,
+    prune_mask,
+)
+from legs_jax.problem import ProblemBatch
+
+__all__ = [
+    "DELTA_STOP",
+    "HPARAM_DEFAULTS",
+    "METHODS",
+    "NUM_DIRICHLET_SAMPLES",
+    "STATIC_HPARAMS",
+    "TRACED_HPARAMS",
+    "RunResult",
+    "legs_prune",
+    "make_tables",
+    "run",
+    "simulate",
+    "trace_counts",
+]
+
+METHODS = (
+    "dexnet",
+    "k100_ub",
+    "borges_100",
+    "borges_2000",
+    "legs_no_as",
+    "legs",
+    "tql",
+)
+HPARAM_DEFAULTS: dict[str, float | int] = dict(
+    s=1.0, prior_offset=1.0, delta=0.05, gamma=0.2, epsilon=0.1, eta=0.1, k=100, n=100
+)
+TRACED_HPARAMS = ("s", "prior_offset", "delta", "gamma", "epsilon", "eta")
+STATIC_HPARAMS = ("k", "n")
+DELTA_STOP = 0.05  # quantile of the Dirichlet stopping bound (independent of δ)
+NUM_DIRICHLET_SAMPLES = 3000  # M
+
+legs_prune = prune_mask  # the LEGS removal set as a pure, batched function
+
+# Methods whose per-step cost is O(K) (dense state); they prefer small batches.
+_DENSE = ("borges_2000", "legs_no_as", "tql")
+
+_TRACES: Counter = Counter()
+
+
+def trace_counts() -> dict[tuple, int]:
+    """How many times the engine traced each (method, static configuration)."""
+    return dict(_TRACES)
+
+
+class RunResult(NamedTuple):
+    """Results of :func:`run`, NumPy arrays with leading axes [G, O, T, R]."""
+
+    final_gap: np.ndarray  # [G, O, T, R] f32 gap Δ_H
+    final_performance: np.ndarray  # [G, O, T, R] f32 Σ_s λ_s p[s, π_H(s)]
+    successes: np.ndarray  # [G, O, T, R] i64 successful grasps
+    distinct_grasps: np.ndarray  # [G, O, T, R] i64 distinct (pose, grasp) tried
+    replacements: np.ndarray  # [G, O, T, R] i64 grasps removed by pruning
+    curve_steps: np.ndarray  # [C1] 0, record_every, ..., H
+    gap_curve: np.ndarray  # [G, O, T, R, C1] f32
+    check_steps: np.ndarray  # [C2] check_every, 2·check_every, ... <= H
+    check_p_lower: np.ndarray  # [G, O, T, R, C2] f32 p̂_ℓ (p̂* over all candidates)
+    check_p_lower_attempted: np.ndarray  # [G, O, T, R, C2] f32 (attempted only)
+    check_true_performance: np.ndarray  # [G, O, T, R, C2] f32
+    active_set: np.ndarray | None  # [G, O, T, R, C2, P, k] i32 grasp ids, -1 empty
+
+
+# ------------------------------------------------------------------- the loop
+
+
+class _Loop(NamedTuple):
+    s: jax.Array  # [B] i32 current pose
+    rec: jax.Array  # [B, P] i32 recommendation π_t (grasp id, -1 none)
+    drops: jax.Array  # [B, P] i32 c_s
+    observed: jax.Array  # [B, P] bool landed in or toppled into
+    visited: jax.Array  # [B, P] bool grasped in at least once
+    successes: jax.Array  # [B] i32
+    distinct: jax.Array  # [B] i32
+    replacements: jax.Array  # [B] i32
+    mstate: Any  # the method's state
+
+
+def _next_pose(cdf: jax.Array, u: jax.Array) -> jax.Array:
+    """Inverse CDF draw per row: the first pose whose cdf exceeds u·total.
+
+    cdf [B, P], u [B]. Poses of probability 0 are never drawn.
+    """
+    total = cdf[:, -1:]
+    i = jnp.sum(cdf <= u[:, None] * total, axis=-1, dtype=jnp.int32)
+    last = jnp.sum(cdf < total, axis=-1, dtype=jnp.int32)
+    return jnp.minimum(i, last)
+
+
+def _uniforms(keys: jax.Array, n: int) -> jax.Array:
+    return jax.vmap(lambda k: jax.random.uniform(k, (n,)))(keys)
+
+
+def _performance(tables: Tables, ot: jax.Array, rec: jax.Array) -> jax.Array:
+    """Σ_s λ_s p[s, π(s)] per row; π(s) = -1 adds 0. rec [B, P] -> [B]."""
+    P = rec.shape[1]
+    p = tables.p[ot[:, None], jnp.arange(P)[None, :], jnp.maximum(rec, 0)]
+    p = jnp.where(rec >= 0, p, 0.0)
+    return jnp.sum(tables.landing[ot] * p, axis=-1)
+
+
+def _gap(tables: Tables, ot: jax.Array, rec: jax.Array) -> jax.Array:
+    total = jnp.sum(tables.landing[ot] * tables.p_star[ot], axis=-1)
+    return total - _performance(tables, ot, rec)
+
+
+def simulate(
+    tables: Tables,
+    ot: jax.Array,
+    rollout_keys: jax.Array,
+    hp: HParams,
+    *,
+    method: str,
+    cfg: Config,
+    horizon: int,
+    record_every: int = 10,
+    check_every: int | None = 100,
+    attempted_variant: bool = True,
+    record_active_set: bool = False,
+    trajectory: bool = False,
+) -> dict[str, jax.Array]:
+    """Run B rollouts of ``method`` for ``horizon`` steps (pure; jit- and vmap-able).
+
+    Args:
+      tables: problem data of N (object, trial) pairs (:func:`make_tables`).
+      ot: [B] i32 row of ``tables`` of each rollout.
+      rollout_keys: [B] typed keys from :func:`legs_jax.keys.rollout_keys`.
+      hp: traced hyperparameters, each [B].
+      method, cfg, horizon, record_every, check_every: static.
+      attempted_variant: also compute the Dirichlet bound over attempted grasps.
+      record_active_set: return the active set at each check.
+      trajectory: also return per-step ``pose``, ``grasp``, ``reward``, ``live`` and
+        ``in_candidates`` [B, H] (for tests: costs a dense candidate set a step).
+    Returns:
+      dict of arrays with leading axis B: ``gaps`` [B, 1 + H // L] (steps 0, L,
+      2L, ...; L = gcd(record_every, check_every)), ``final_gap``,
+      ``final_performance``, ``successes``, ``distinct_grasps``, ``replacements``
+      [B], and when checks run ``check_p_lower``, ``check_p_lower_attempted``,
+      ``check_true_performance`` [B, C2] (and ``active_set`` [B, C2, P, k]).
+    """
+    m: Method = methods_mod.get(method)
+    _TRACES[(method, cfg, horizon, record_every, check_every, ot.shape[0])] += 1
+    B = ot.shape[0]
+    P = cfg.num_poses
+    ctx = Ctx(tables, ot, hp)
+    env_k = keys_mod.env_key(rollout_keys)
+    met_k = keys_mod.method_key(rollout_keys)
+    chk_k = keys_mod.check_key(rollout_keys)
+    has_grasp = tables.n_valid > 0  # [N, P]
+    bi = jnp.arange(B)
+
+    ms = m.init(ctx, cfg)
+    s0 = _next_pose(
+        tables.landing_cdf[ot], _uniforms(keys_mod.step_keys(env_k, 0), 1)[:, 0]
+    )
+    zeros_bp = jnp.zeros((B, P), jnp.int32)
+    loop = _Loop(
+        s=s0,
+        rec=m.recommend_init(ms, ctx, cfg).astype(jnp.int32),
+        drops=zeros_bp.at[bi, s0].add(1),
+        observed=jnp.zeros((B, P), bool).at[bi, s0].set(True),
+        visited=jnp.zeros((B, P), bool),
+        successes=jnp.zeros(B, jnp.int32),
+        distinct=jnp.zeros(B, jnp.int32),
+        replacements=jnp.zeros(B, jnp.int32),
+        mstate=ms,
+    )
+
+    def step(c: _Loop, t):
+        s = c.s
+        live = has_grasp[ot, s]
+        grasp, slot = m.select(c.mstate, ctx, cfg, s, keys_mod.step_keys(met_k, t))
+        u = _uniforms(keys_mod.step_keys(env_k, t), 2)
+        reward = live & (u[:, 0] < tables.p[ot, s, grasp])
+        traj = None
+        if trajectory:
+            inside = m.candidates(c.mstate, ctx, cfg)[bi, s, grasp]
+            traj = (s, jnp.where(live, grasp, -1), reward, live, inside | ~live)
+        ms, new = m.update(c.mstate, ctx, cfg, s, grasp, slot, reward, live)
+        removed = jnp.zeros(B, jnp.int32)
+        if m.prune is not None:
+            ms, removed = jax.lax.cond(
+                t % cfg.n == 0,
+                lambda st: m.prune(st, ctx, cfg, s, live),
+                lambda st: (st, jnp.zeros(B, jnp.int32)),
+                ms,
+            )
+        rec = c.rec
+        if m.learns:
+            rec_s = m.recommend(ms, ctx, cfg, s)
+            rec = rec.at[bi, s].set(jnp.where(live, rec_s, rec[bi, s]))
+        cdf = jnp.where(
+            reward[:, None], tables.landing_cdf[ot], tables.topple_cdf[ot, s]
+        )
+        s_next = _next_pose(cdf, u[:, 1])
+        c = _Loop(
+            s=s_next,
+            rec=rec,
+            drops=c.drops.at[bi, s_next].add(reward.astype(jnp.int32)),
+            observed=c.observed.at[bi, s_next].set(True),
+            visited=c.visited.at[bi, s].set(c.visited[bi, s] | live),
+            successes=c.successes + reward,
+            distinct=c.distinct + new,
+            replacements=c.replacements + removed,
+            mstate=ms,
+        )
+        return c, traj
+
+    def run_steps(c: _Loop, t0, nsteps: int):
+        ts = t0 + 1 + jnp.arange(nsteps, dtype=jnp.int32)
+        return jax.lax.scan(step, c, ts)
+
+    L = math.gcd(record_every, check_every) if check_every else record_every
+    n_checks = horizon // check_every if check_every else 0
+    bpc = check_every // L if check_every else 0  # blocks per check period
+    n_blocks = horizon // L
+    rem_blocks = n_blocks - n_checks * bpc
+    tail = horizon - n_blocks * L
+
+    def block(c: _Loop, blk):
+        c, traj = run_steps(c, blk * L, L)
+        return c, (_gap(tables, ot, c.rec), traj)
+
+    def check(c: _Loop, idx):
+        v_all, v_att = m.estimates(c.mstate, ctx, cfg)
+        ck = keys_mod.step_keys(chk_k, idx)
+        counts = c.drops.astype(jnp.float32)
+        lower = sampling.dirichlet_lower_bound(
+            ck, counts, c.observed, v_all, DELTA_STOP, NUM_DIRICHLET_SAMPLES
+        )
+        if attempted_variant:
+            lower_att = sampling.dirichlet_lower_bound(
+                ck, counts, c.observed, v_att, DELTA_STOP, NUM_DIRICHLET_SAMPLES
+            )
+        else:
+            lower_att = jnp.full(B, jnp.nan, jnp.float32)
+        out = dict(
+            check_p_lower=lower.astype(jnp.float32),
+            check_p_lower_attempted=lower_att.astype(jnp.float32),
+            check_true_performance=_performance(tables, ot, c.rec),
+        )
+        if record_active_set:
+            if m.active_set is None:
+                act = jnp.full((B, P, cfg.k), -1, jnp.int32)
+            else:
+                act = m.active_set(c.mstate, ctx, cfg)
+                act = jnp.where(c.visited[..., None], act, -1).astype(jnp.int32)
+            out["active_set"] = act
+        return out
+
+    def period(c: _Loop, j):
+        c, (gaps, traj) = jax.lax.scan(block, c, j * bpc + jnp.arange(bpc))
+        return c, (gaps, traj, check(c, j + 1))
+
+    gap0 = _gap(tables, ot, loop.rec)
+    gap_parts = [gap0[None]]
+    traj_parts = []
+    checks = None
+    c = loop
+    if n_checks:
+        c, (g1, tr1, checks) = jax.lax.scan(period, c, jnp.arange(n_checks))
+        gap_parts.append(g1.reshape(-1, B))
+        traj_parts.append(tr1)
+    if rem_blocks:
+        c, (g2, tr2) = jax.lax.scan(block, c, n_checks * bpc + jnp.arange(rem_blocks))
+        gap_parts.append(g2)
+        traj_parts.append(tr2)
+    if tail:
+        c, tr3 = run_steps(c, n_blocks * L, tail)
+        traj_parts.append(tr3)
+
+    out = dict(
+        gaps=jnp.concatenate(gap_parts, axis=0).T,
+        final_gap=_gap(tables, ot, c.rec),
+        final_performance=_performance(tables, ot, c.rec),
+        successes=c.successes,
+        distinct_grasps=c.distinct,
+        replacements=c.replacements,
+    )
+    if checks is not None:
+        for name, v in checks.items():
+            out[name] = jnp.moveaxis(v, 0, 1)  # [C2, B, ...] -> [B, C2, ...]
+    if trajectory:
+        flat = []
+        for tr in traj_parts:
+            flat.append(jax.tree.map(lambda x: x.reshape(-1, B).T, tr))
+        names = ("pose", "grasp", "reward", "live", "in_candidates")
+        for i, name in enumerate(names):
+            out[name] = jnp.concatenate([f[i] for f in flat], axis=1)
+    return out
+
+
+# ------------------------------------------------------------------ host side
+
+
+def make_tables(batch: ProblemBatch, trials: Sequence[int], pad_to: int | None = None):
+    """Tables for every (object, trial) pair, row o·T' + i for trial ``trials[i]``.
+
+    Returns NumPy arrays in a :class:`Tables` (padded with copies of row 0 up to
+    ``pad_to`` rows).
+    """
+    tr = np.asarray(trials, np.int64)
+    O = batch.robustness.shape[0]
+    T = len(tr)
+    P, K = batch.robustness.shape[2:]
+    valid = batch.valid[:, tr] & batch.pose_valid[:, None, :, None]  # [O, T, P, K]
+    p = np.where(valid, batch.robustness[:, tr], 0.0).astype(np.float32)
+    q = np.where(valid, batch.prior[:, tr], 0.0).astype(np.float32)
+    key = np.where(valid, -q.astype(np.float64), np.inf)
+    order = np.argsort(key, axis=-1, kind="stable").astype(np.int32)
+    n_valid = valid.sum(-1).astype(np.int32)
+    p_star = p.max(-1)
+    landing = np.where(batch.pose_valid, batch.landing, 0.0).astype(np.float64)
+    topple = np.where(batch.pose_valid[:, None, :], batch.topple, 0.0).astype(
+        np.float64
+    )
+    landing_cdf = np.cumsum(landing, axis=-1).astype(np.float32)  # [O, P]
+    topple_cdf = np.cumsum(topple, axis=-1).astype(np.float32)  # [O, P, P]
+
+    def per_ot(x):  # [O, ...] -> [O*T, ...]
+        return np.repeat(x, T, axis=0)
+
+    def flat(x):  # [O, T, ...] -> [O*T, ...]
+        return x.reshape((O * T,) + x.shape[2:])
+
+    out = Tables(
+        p=flat(p),
+        q=flat(q),
+        valid=flat(valid),
+        order=flat(order),
+        n_valid=flat(n_valid),
+        p_star=flat(p_star),
+        landing=per_ot(landing.astype(np.float32)),
+        landing_cdf=per_ot(landing_cdf),
+        topple_cdf=per_ot(topple_cdf),
+    )
+    N = O * T
+    if pad_to is not None and pad_to > N:
+        idx = np.concatenate([np.arange(N), np.zeros(pad_to - N, np.int64)])
+        out = Tables(*(x[idx] for x in out))
+    assert out.p.shape[1:] == (P, K)
+    return out
+
+
+def _is_int(x: Any) -> bool:
+    return isinstance(x, numbers.Integral) and not isinstance(x, bool)
+
+
+def _hparam_grid(
+    method: str, hparams: Mapping[str, Any] | None, K: int
+) -> tuple[int, dict[str, np.ndarray]]:
+    """Validate ``hparams`` and broadcast them to a grid of G points (zipped)."""
+    if method not in METHODS:
+        raise ConfigError(
+            f"unknown method {method!r}; choose one of {', '.join(METHODS)}"
+        )
+    hp = dict(HPARAM_DEFAULTS)
+    if hparams is not None:
+        if not isinstance(hparams, Mapping):
+            raise ConfigError(
+                f"hparams must be a mapping of name -> value, got {hparams!r}"
+            )
+        unknown = sorted(set(hparams) - set(HPARAM_DEFAULTS))
+        if unknown:
+            raise ConfigError(
+                f"unknown hyperparameter(s) {', '.join(map(str, unknown))}; "
+                f"known: {', '.join(HPARAM_DEFAULTS)}"
+            )
+        hp.update(hparams)
+    G = 1
+    values: dict[str, np.ndarray] = {}
+    for name, v in hp.items():
+        if isinstance(v, (str, bytes)):
+            raise ConfigError(f"hyperparameter {name} must be a number, got {v!r}")
+        arr = np.asarray(v, dtype=object)
+        if arr.ndim > 1:
+            raise ConfigError(
+                f"hyperparameter {name} must be a number or a flat sequence, "
+                f"got shape {arr.shape}"
+            )
+        if arr.ndim == 1:
+            if arr.size == 0:
+                raise ConfigError(f"hyperparameter {name} is an empty sequence")
+            if G != 1 and arr.size != G:
+                raise ConfigError(
+                    f"hyperparameter sequences must have equal lengths (a zipped "
+                    f"grid): {name} has {arr.size} values, others {G}"
+                )
+            G = arr.size
+        values[name] = arr.reshape(-1)
+    for name, arr in values.items():
+        for x in arr:
+            if isinstance(x, bool) or not isinstance(x, numbers.Real):
+                raise ConfigError(f"hyperparameter {name} must be a number, got {x!r}")
+            if not math.isfinite(float(x)):
+                raise ConfigError(f"hyperparameter {name} must be finite, got {x!r}")
+    out = {name: np.broadcast_to(arr, (G,)) for name, arr in values.items()}
+    f = {name: out[name].astype(np.float64) for name in TRACED_HPARAMS}
+    for name in ("delta", "gamma"):
+        bad = f[name][(f[name] <= 0) | (f[name] >= 1)]
+        if bad.size:
+            raise ConfigError(f"{name} must lie in (0, 1), got {bad[0]:g}")
+    for name in ("epsilon", "eta"):
+        bad = f[name][(f[name] < 0) | (f[name] > 1)]
+        if bad.size:
+            raise ConfigError(f"{name} must lie in [0, 1], got {bad[0]:g}")
+    for name in ("s", "prior_offset"):
+        bad = f[name][f[name] < 0]
+        if bad.size:
+            raise ConfigError(f"{name} must be >= 0, got {bad[0]:g}")
+    if np.any((f["s"] == 0) & (f["prior_offset"] == 0)):
+        raise ConfigError(
+            "s = 0 with prior_offset = 0 gives Beta(0, 0) for untried grasps; "
+            "make one of them positive"
+        )
+    for name in STATIC_HPARAMS:
+        for x in out[name]:
+            if not (_is_int(x) or (isinstance(x, float) and x.is_integer())) or x < 1:
+                raise ConfigError(f"{name} must be an integer >= 1, got {x!r}")
+    ints = {name: out[name].astype(np.int64) for name in STATIC_HPARAMS}
+    if method == "legs" and np.any(ints["k"] > K):
+        raise ConfigError(
+            f"k = {int(ints['k'].max())} exceeds the K = {K} grasps per pose of the "
+            "problems"
+        )
+    f.update(ints)
+    return G, f
+
+
+def _default_batch_size(method: str, platform: str, cfg: Config) -> int:
+    if platform == "cpu":
+        return 32 if method in _DENSE else 512
+    return 2048 if method in _DENSE else 16384
+
+
+@functools.lru_cache(maxsize=64)
+def _compiled(
+    method: str,
+    cfg: Config,
+    horizon: int,
+    record_every: int,
+    check_every: int | None,
+    attempted_variant: bool,
+    record_active_set: bool,
+    devices: tuple,
+) -> Callable:
+    fn = functools.partial(
+        simulate,
+        method=method,
+        cfg=cfg,
+        horizon=horizon,
+        record_every=record_every,
+        check_every=check_every,
+        attempted_variant=attempted_variant,
+        record_active_set=record_active_set,
+    )
+    if len(devices) == 1:
+        return jax.jit(fn)
+    from jax.sharding import Mesh
+    from jax.sharding import PartitionSpec as Pspec
+
+    mesh = Mesh(np.array(devices), ("b",))
+    sharded = jax.shard_map(
+        fn,
+        mesh=mesh,
+        in_specs=(Pspec(), Pspec("b"), Pspec("b"), Pspec("b")),
+        out_specs=Pspec("b"),
+        check_vma=False,
+    )
+    return jax.jit(sharded)
+
+
+def _check_int(name: str, value: Any, minimum: int) -> int:
+    if not _is_int(value) or value < minimum:
+        raise ConfigError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def run(
+    batch: ProblemBatch,
+    method: str,
+    *,
+    object_ids: Sequence[int],
+    trials: Sequence[int] | None = None,
+    num_rollouts: int = 10,
+    horizon: int = 3000,
+    hparams: Mapping[str, float | Sequence[float]] | None = None,
+    seed: int = 0,
+    rollout_offset: int = 0,
+    record_every: int = 10,
+    check_every: int | None = 100,
+    stop_variant_attempted: bool = True,
+    record_active_set: bool = False,
+    devices: Sequence[jax.Device] | None = None,
+    batch_size: int | None = None,
+    progress: bool | Callable[[int], Any] | None = None,
+) -> RunResult:
+    """Run ``method`` on every object and trial of ``batch``, R rollouts each.
+
+    Args:
+      batch: the problems (:func:`legs_jax.problem.stack`), axes [O, T, P, K].
+      method: one of :data:`METHODS`.
+      object_ids: [O] stable integer id of each object (seeds its rollouts).
+      trials: indices into the batch's T axis (default: all).
+      num_rollouts: R.
+      horizon: H, steps per rollout.
+      hparams: overrides of :data:`HPARAM_DEFAULTS`; a value may be a sequence
+        (all sequences of one length G: a zipped grid, not a product). Grid points
+        share the random numbers of a rollout.
+      seed: non-negative integer.
+      rollout_offset: rollout r uses key index ``rollout_offset + r`` (to split a
+        run into pieces that join into the same results).
+      record_every: gap recorded every this many steps (and at H).
+      check_every: Dirichlet check every this many steps; None or 0: no checks.
+      stop_variant_attempted: also compute the bound over attempted grasps only
+        (else that field is NaN).
+      record_active_set: return each pose's active set at each check.
+      devices: devices to shard the rollouts over (default: all local devices).
+      batch_size: rollouts per device per mini-batch (default: by method and
+        platform). Results do not depend on it.
+      progress: True for a progress bar over rollouts, False for none, None for a
+        bar when the job is large, or a callable given the number of rollouts done
+        after each mini-batch.
+    Returns:
+      a :class:`RunResult`.
+    Raises:
+      ConfigError: invalid input, before any computation.
+    """
+    # ---------------------------------------------------------------- validation
+    if not isinstance(batch, ProblemBatch):
+        raise ConfigError(
+            f"batch must be a legs_jax.problem.ProblemBatch (see stack()), "
+            f"got {type(batch).__name__}"
+        )
+    O, T_all, P, K = batch.shape
+    G, hp = _hparam_grid(method, hparams, K)
+    obj = list(np.asarray(object_ids).reshape(-1)) if object_ids is not None else []
+    if len(obj) != O:
+        raise ConfigError(
+            f"object_ids has {len(obj)} entries, the batch has {O} objects"
+        )
+    for x in obj:
+        if not _is_int(x) or not 0 <= x < 2**31:
+            raise ConfigError(f"object ids must be integers in [0, 2**31), got {x!r}")
+    trials = (
+        list(range(T_all)) if trials is None else list(np.asarray(trials).reshape(-1))
+    )
+    if not trials:
+        raise ConfigError("trials is empty")
+    for x in trials:
+        if not _is_int(x) or not 0 <= x < T_all:
+            raise ConfigError(f"trial {x!r} out of range: the batch has {T_all} trials")
+    R = _check_int("num_rollouts", num_rollouts, 1)
+    H = _check_int("horizon", horizon, 1)
+    seed = _check_int("seed", seed, 0)
+    rollout_offset = _check_int("rollout_offset", rollout_offset, 0)
+    record_every = _check_int("record_every", record_every, 1)
+    if check_every is None or (_is_int(check_every) and check_every == 0):
+        check_every = None
+    else:
+        check_every = _check_int("check_every", check_every, 1)
+        if check_every > H:
+            check_every = None
+    if devices is None:
+        devices = jax.local_devices()
+    devices = tuple(devices)
+    if not devices:
+        raise ConfigError("devices is empty")
+    if batch_size is not None:
+        batch_size = _check_int("batch_size", batch_size, 1)
+    if record_active_set and len(set(hp["k"].tolist())) > 1:
+        raise ConfigError("record_active_set needs a single k, not a grid over k")
+
+    # ---------------------------------------------------------------- layout
+    T = len(trials)
+    N = O * T
+    n_pad = 1 << max(0, (N - 1).bit_length())
+    tables_np = make_tables(batch, trials, pad_to=n_pad)
+    rows = G * O * T * R
+    g_i, o_i, t_i, r_i = (a.reshape(-1) for a in np.indices((G, O, T, R)))
+    ot_rows = (o_i * T + t_i).astype(np.int32)
+    obj_rows = np.asarray(obj, np.int64)[o_i]
+    trial_rows = np.asarray(trials, np.int64)[t_i]
+    key_rows = keys_mod.rollout_keys(seed, obj_rows, trial_rows, rollout_offset + r_i)
+
+    curve_steps = np.unique(np.append(np.arange(0, H + 1, record_every), H))
+    check_steps = (
+        np.arange(check_every, H + 1, check_every) if check_every else np.zeros(0, int)
+    )
+    C2 = check_steps.size
+    L = math.gcd(record_every, check_every) if check_every else record_every
+    gap_steps = np.arange(0, H // L + 1) * L
+    # column of each curve step in the engine's gaps (H itself is final_gap)
+    gap_cols = np.searchsorted(gap_steps, curve_steps)
+
+    n_dev = len(devices)
+    platform = devices[0].platform
+    # Group grid points by their static hyperparameters (k, n).
+    statics = list(zip(hp["k"].tolist(), hp["n"].tolist(), strict=True))
+    groups: dict[tuple[int, int], list[int]] = {}
+    for g, kn in enumerate(statics):
+        groups.setdefault(kn, []).append(g)
+
+    if n_dev == 1:
+        put_tables = jax.device_put(Tables(*tables_np), devices[0])
+    else:
+        from jax.sharding import Mesh, NamedSharding
+        from jax.sharding import PartitionSpec as Pspec
+
+        mesh = Mesh(np.array(devices), ("b",))
+        put_tables = jax.device_put(Tables(*tables_np), NamedSharding(mesh, Pspec()))
+        row_sharding = NamedSharding(mesh, Pspec("b"))
+
+    results: dict[str, np.ndarray] = {}
+
+    def store(name: str, idx: np.ndarray, value: np.ndarray) -> None:
+        if name not in results:
+            results[name] = np.zeros((rows,) + value.shape[1:], value.dtype)
+        results[name][idx] = value
+
+    bar = None
+    callback = progress if callable(progress) else None
+    show = progress is True or (progress is None and rows * H >= 2_000_000)
+    if show and callback is None:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=rows, desc=f"{method}", unit="rollout", leave=False)
+    done = 0
+    for (k_val, n_val), gs in groups.items():
+        cfg = Config(num_poses=P, num_grasps=K, k=int(k_val), n=int(n_val))
+        sel = np.flatnonzero(np.isin(g_i, gs))
+        per_dev = batch_size or _default_batch_size(method, platform, cfg)
+        per_dev = min(per_dev, 1 << max(0, (-(-sel.size // n_dev) - 1).bit_length()))
+        Bc = per_dev * n_dev
+        fn = _compiled(
+            method, cfg, H, record_every, check_every,
+            bool(stop_variant_attempted), bool(record_active_set), devices,
+        )  # fmt: skip
+        pending = []
+        for start in range(0, sel.size, Bc):
+            idx = sel[start : start + Bc]
+            pad = Bc - idx.size
+            full = np.concatenate([idx, np.full(pad, idx[0])]) if pad else idx
+            hp_b = HParams(
+                *(
+                    jnp.asarray(hp[name][g_i[full]], jnp.float32)
+                    for name in TRACED_HPARAMS
+                )
+            )
+            args = (jnp.asarray(ot_rows[full]), key_rows[full], hp_b)
+            if n_dev > 1:
+                args = jax.device_put(args, row_sharding)
+            else:
+                args = jax.device_put(args, devices[0])
+            pending.append((idx, fn(put_tables, *args)))
+            if len(pending) > 1:
+                done += _collect(pending.pop(0), store, gap_cols, curve_steps, H)
+                _report(bar, callback, done)
+        while pending:
+            done += _collect(pending.pop(0), store, gap_cols, curve_steps, H)
+            _report(bar, callback, done)
+    if bar is not None:
+        bar.close()
+
+    shape = (G, O, T, R)
+
+    def get(name, dtype=None, extra=()):
+        if name not in results:
+            return np.zeros(shape + extra, dtype or np.float32)
+        a = results[name]
+        return a.reshape(shape + a.shape[1:]).astype(dtype or a.dtype, copy=False)
+
+    return RunResult(
+        final_gap=get("final_gap", np.float32),
+        final_performance=get("final_performance", np.float32),
+        successes=get("successes", np.int64),
+        distinct_grasps=get("distinct_grasps", np.int64),
+        replacements=get("replacements", np.int64),
+        curve_steps=curve_steps,
+        gap_curve=get("gap_curve", np.float32),
+        check_steps=check_steps,
+        check_p_lower=get("check_p_lower", np.float32, (C2,)),
+        check_p_lower_attempted=get("check_p_lower_attempted", np.float32, (C2,)),
+        check_true_performance=get("check_true_performance", np.float32, (C2,)),
+        active_set=(
+            get("active_set", np.int32, (C2, P, int(hp["k"][0])))
+            if record_active_set
+            else None
+        ),
+    )
+
+
+def _report(bar, callback, done: int) -> None:
+    if bar is not None:
+        bar.n = done
+        bar.refresh()
+    if callback is not None:
+        callback(done)
+
+
+def _collect(item, store, gap_cols, curve_steps, H) -> int:
+    idx, out = item
+    n = idx.size
+    out = jax.device_get(out)
+    gaps = np.asarray(out.pop("gaps"))[:n]
+    final = np.asarray(out["final_gap"])[:n]
+    curve = np.empty((n, curve_steps.size), np.float32)
+    inner = curve_steps < H
+    curve[:, inner] = gaps[:, gap_cols[inner]]
+    curve[:, ~inner] = final[:, None]
+    store("gap_curve", idx, curve)
+    for name, value in out.items():
+        store(name, idx, np.asarray(value)[:n])
+    return n

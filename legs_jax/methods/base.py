@@ -1,0 +1,248 @@
+"""The method interface and the pieces every method shares.
+
+A method is a :class:`Method`: a few pure functions over its own state, each taking
+and returning arrays with an explicit leading batch axis B (one row per rollout).
+The engine (:mod:`legs_jax.engine`) owns the loop, the environment, the masks of
+padding and empty poses, the metrics and the counters; a method only chooses,
+learns, prunes and recommends.
+
+Dimension letters: N (object, trial) pairs held in the tables, B rollouts,
+P poses, K grasps per pose, k active-set (slot) size.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from legs_jax import sampling
+
+__all__ = [
+    "Q_CLIP",
+    "TOP_FIXED",
+    "Config",
+    "Ctx",
+    "HParams",
+    "Method",
+    "Tables",
+    "argmax_first",
+    "argmin_id_of_max",
+    "gather_rows",
+    "gather_at",
+    "posterior_prior",
+    "prune_mask",
+    "thompson_draw",
+]
+
+Q_CLIP = (0.01, 0.99)  # q is clipped to this range inside the Beta parameters
+TOP_FIXED = 100  # candidate set of BORGES (K=100) and of the K100 upper bound
+
+
+class Tables(NamedTuple):
+    """Problem data on the device for N (object, trial) pairs; rows index by ``ot``."""
+
+    p: jax.Array  # [N, P, K] f32 ground-truth robustness, 0 on padding
+    q: jax.Array  # [N, P, K] f32 raw prior quality, 0 on padding
+    valid: jax.Array  # [N, P, K] bool real grasp
+    order: jax.Array  # [N, P, K] i32 grasp ids by descending q, valid first
+    n_valid: jax.Array  # [N, P] i32 number of valid grasps of each pose
+    p_star: jax.Array  # [N, P] f32 best p of each pose (0 with no grasp)
+    landing: jax.Array  # [N, P] f32 λ
+    landing_cdf: jax.Array  # [N, P] f32 cumulative λ
+    topple_cdf: jax.Array  # [N, P, P] f32 cumulative topple rows
+
+
+class HParams(NamedTuple):
+    """The traced hyperparameters, one value per rollout."""
+
+    s: jax.Array  # [B] prior strength
+    prior_offset: jax.Array  # [B] the +1 of SPEC §3
+    delta: jax.Array  # [B] confidence of the LEGS bounds
+    gamma: jax.Array  # [B] LEGS global threshold
+    epsilon: jax.Array  # [B] TQL exploration rate
+    eta: jax.Array  # [B] TQL learning rate
+
+
+class Ctx(NamedTuple):
+    """What every method function may read."""
+
+    tables: Tables
+    ot: jax.Array  # [B] i32 row of the tables of each rollout
+    hp: HParams
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    """Static (shape-setting) configuration; one compile per distinct value."""
+
+    num_poses: int  # P
+    num_grasps: int  # K
+    k: int = 100  # LEGS active-set size
+    n: int = 100  # LEGS pruning period
+
+    @property
+    def top(self) -> int:
+        """Size of the fixed top-by-q candidate set (BORGES K=100, K100 UB)."""
+        return min(TOP_FIXED, self.num_grasps)
+
+
+@dataclasses.dataclass(frozen=True)
+class Method:
+    """One exploration method as pure functions over its own state.
+
+    Every function takes the method state (a pytree with leading axis B), the
+    :class:`Ctx` and the static :class:`Config`; ``s`` is the current pose [B].
+
+    - ``init(ctx, cfg) -> state``.
+    - ``select(state, ctx, cfg, s, key) -> (grasp, slot)``: the grasp id [B] to
+      execute at pose s and the method's own index of it [B] (the slot for
+      active-set methods, else the grasp id). ``key`` [B] is consumed. Only called
+      where pose s has a valid grasp (elsewhere the result is ignored).
+    - ``update(state, ctx, cfg, s, grasp, slot, reward, live) -> (state, new)``:
+      learn from the outcome [B] bool; rows with ``live`` False must not change.
+      ``new`` [B] bool: the (pose, grasp) had never been attempted.
+    - ``prune`` (or None) ``(state, ctx, cfg, s, live) -> (state, removed)``: called
+      after the update of every step t ≡ 0 (mod n) for the pose just grasped;
+      ``removed`` [B] i32 counts the grasps taken out.
+    - ``recommend(state, ctx, cfg, s) -> [B]``: π_t(s) for the pose just updated
+      (a visited pose), a grasp id.
+    - ``recommend_init(state, ctx, cfg) -> [B, P]``: π_0 for every pose (no data).
+    - ``estimates(state, ctx, cfg) -> ([B, P], [B, P])``: p̂*_s over all candidates
+      and over the attempted candidates only (0 where there are none).
+    - ``candidates(state, ctx, cfg) -> [B, P, K]`` bool: the candidate set, dense
+      (for tests and conformance checks; not used in the loop).
+    - ``active_set`` (or None) ``(state, ctx, cfg) -> [B, P, k]`` grasp ids, -1 for
+      an empty slot.
+    """
+
+    name: str
+    description: str
+    init: Callable[..., Any]
+    select: Callable[..., tuple[jax.Array, jax.Array]]
+    update: Callable[..., tuple[Any, jax.Array]]
+    recommend: Callable[..., jax.Array]
+    recommend_init: Callable[..., jax.Array]
+    estimates: Callable[..., tuple[jax.Array, jax.Array]]
+    candidates: Callable[..., jax.Array]
+    prune: Callable[..., tuple[Any, jax.Array]] | None = None
+    active_set: Callable[..., jax.Array] | None = None
+    learns: bool = True  # False for the constant rows (Dex-Net, K100 UB)
+
+
+# ----------------------------------------------------------------------- helpers
+
+
+def argmax_first(x: jax.Array, axis: int = -1) -> jax.Array:
+    """Index of the maximum along ``axis``, the lowest one on ties (as np.argmax).
+
+    Written as max, then the smallest index equal to it: faster than
+    ``jnp.argmax`` on CPU.
+    """
+    fn = getattr(sampling, "argmax_first", None)
+    if fn is not None and axis == -1:
+        return fn(x)
+    m = jnp.max(x, axis=axis, keepdims=True)
+    n = x.shape[axis]
+    idx = jax.lax.broadcasted_iota(jnp.int32, x.shape, axis % x.ndim)
+    return jnp.min(jnp.where(x == m, idx, n), axis=axis)
+
+
+def argmin_id_of_max(
+    score: jax.Array, mask: jax.Array, ids: jax.Array, none: int = -1
+) -> jax.Array:
+    """The lowest id among the maxima of ``score`` over ``mask`` (last axis).
+
+    Used where candidates sit in slots whose order is not the grasp order, so that
+    ties still go to the lowest grasp index. ``none`` where the mask is empty.
+    """
+    s = jnp.where(mask, score, -jnp.inf)
+    m = jnp.max(s, axis=-1, keepdims=True)
+    big = jnp.iinfo(jnp.int32).max
+    best = jnp.min(jnp.where(mask & (s == m), ids, big), axis=-1)
+    return jnp.where(jnp.any(mask, axis=-1), best, none)
+
+
+def gather_rows(table: jax.Array, ot: jax.Array, s: jax.Array) -> jax.Array:
+    """``table[ot[b], s[b]]`` for every b: [N, P, ...] -> [B, ...]."""
+    return table[ot, s]
+
+
+def gather_at(x: jax.Array, s: jax.Array, j: jax.Array | None = None) -> jax.Array:
+    """Per-row gather from state: ``x[b, s[b]]`` (or ``x[b, s[b], j[b]]``)."""
+    b = jnp.arange(x.shape[0])
+    return x[b, s] if j is None else x[b, s, j]
+
+
+def _col(v: jax.Array, ndim: int) -> jax.Array:
+    """[B] -> [B, 1, ..., 1] to broadcast against an array of ``ndim`` dims."""
+    return v.reshape(v.shape + (1,) * (ndim - 1))
+
+
+def posterior_prior(q: jax.Array, hp: HParams) -> tuple[jax.Array, jax.Array]:
+    """α, β of the prior of SPEC §3 for grasps of quality q ([B, ...]).
+
+    α = prior_offset + s·q_c, β = prior_offset + s·(1 − q_c), q_c = clip(q).
+    """
+    qc = jnp.clip(q, *Q_CLIP)
+    s = _col(hp.s, q.ndim)
+    off = _col(hp.prior_offset, q.ndim)
+    return off + s * qc, off + s * (1.0 - qc)
+
+
+def thompson_draw(
+    key: jax.Array, alpha: jax.Array, beta: jax.Array, mask: jax.Array
+) -> jax.Array:
+    """Index of the largest exact Beta(α, β) draw over ``mask`` (ties: lowest).
+
+    Args:
+      key: [B] keys (consumed).
+      alpha, beta: [B, N] shapes; masked entries may hold anything positive.
+      mask: [B, N] bool, the candidates (at least one per live row).
+    Returns:
+      [B] i32 index into N.
+    """
+    a = jnp.where(mask, alpha, 1.0)
+    b = jnp.where(mask, beta, 1.0)
+    phi = sampling.beta_rows(key, a, b)
+    return argmax_first(jnp.where(mask, phi, -1.0))
+
+
+def prune_mask(
+    alpha: jax.Array,
+    beta: jax.Array,
+    attempted: jax.Array,
+    active: jax.Array,
+    delta: jax.Array,
+    gamma: jax.Array,
+    ids: jax.Array | None = None,
+) -> jax.Array:
+    """The LEGS removal set B of SPEC §4, batched over rows.
+
+    B = { i active : i attempted, i ≠ i*, X_{i,u} < X*_ℓ or X_{i,u} < γ }, with
+    X_{i,ℓ} = PPF(Beta(α_i, β_i), δ), X_{i,u} = PPF(Beta(α_i, β_i), 1 − δ),
+    X*_ℓ = max over active arms of X_{i,ℓ} and i* = argmax posterior mean over the
+    active arms (ties: lowest id).
+
+    Args:
+      alpha, beta: [B, N] Beta parameters (prior offset included).
+      attempted, active: [B, N] bool.
+      delta, gamma: [B].
+      ids: [B, N] grasp ids for the tie-break of i* (default: the index in N).
+    Returns:
+      [B, N] bool, a subset of ``active``.
+    """
+    if ids is None:
+        ids = jax.lax.broadcasted_iota(jnp.int32, alpha.shape, 1)
+    a = jnp.where(active, alpha, 1.0)
+    b = jnp.where(active, beta, 1.0)
+    d = delta[:, None]
+    lower = sampling.beta_ppf(d, a, b)  # X_{i,ℓ}
+    upper = sampling.beta_ppf(1.0 - d, a, b)  # X_{i,u}
+    x_star_lower = jnp.max(jnp.where(active, lower, -jnp.inf), axis=1, keepdims=True)
+    i_star = argmin_id_of_max(a / (a + b), active, ids)
+    bad = (upper < x_star_lower) | (upper < gamma[:, None])
+    return active & attempted & (ids != i_star[:, None]) & bad

@@ -1,0 +1,16 @@
+"""BORGES (K=2000): Thompson sampling over every grasp of the pose (SPEC §4)."""
+
+from legs_jax.methods import _dense
+from legs_jax.methods.base import Method
+
+METHOD = Method(
+    name="borges_2000",
+    description="BORGES (K=2000): Thompson sampling over all K grasps",
+    init=lambda ctx, cfg: _dense.init(ctx, cfg, removable=False),
+    select=_dense.select,
+    update=_dense.update,
+    recommend=_dense.recommend,
+    recommend_init=_dense.recommend_init,
+    estimates=_dense.estimates,
+    candidates=_dense.candidates,
+)

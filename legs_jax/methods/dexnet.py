@@ -1,0 +1,22 @@
+"""Dex-Net: the grasp of highest prior q in each pose, no exploration (SPEC §4).
+
+A constant row: its gap never changes. It still runs in the environment, and its
+Beta posterior of all K grasps (learning only from the fixed grasp) serves the
+Dirichlet check.
+"""
+
+from legs_jax.methods import _fixed
+from legs_jax.methods.base import Method
+
+METHOD = Method(
+    name="dexnet",
+    description="Dex-Net: argmax prior, no exploration (constant gap)",
+    init=lambda ctx, cfg: _fixed.init(ctx, cfg, which="dexnet"),
+    select=_fixed.select,
+    update=_fixed.update,
+    recommend=_fixed.recommend,
+    recommend_init=_fixed.recommend_init,
+    estimates=_fixed.estimates,
+    candidates=_fixed.candidates_dexnet,
+    learns=False,
+)

@@ -1,0 +1,83 @@
+"""Tabular Q-learning (SPEC §4): ε-greedy over all K grasps (ε: uniform over the
+valid grasps), one-step update Q ← Q + η (r − Q), Q₀ = q."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from legs_jax.methods.base import Config, Ctx, Method, argmax_first, gather_at
+
+
+class TQLState(NamedTuple):
+    Q: jax.Array  # [B, P, K] f32 action values
+    attempted: jax.Array  # [B, P, K] bool tried at least once
+
+
+def init(ctx: Ctx, cfg: Config) -> TQLState:
+    q = ctx.tables.q[ctx.ot]
+    return TQLState(q, jnp.zeros(q.shape, bool))
+
+
+def _greedy(Q_row, valid_row):
+    best = argmax_first(jnp.where(valid_row, Q_row, -jnp.inf))
+    return jnp.where(jnp.any(valid_row, axis=-1), best, -1)
+
+
+def select(st: TQLState, ctx: Ctx, cfg: Config, s, key):
+    u = jax.vmap(lambda k: jax.random.uniform(k, (2,)))(key)  # [B, 2]
+    valid = ctx.tables.valid[ctx.ot, s]  # [B, K]
+    greedy = jnp.maximum(_greedy(gather_at(st.Q, s), valid), 0)
+    nv = ctx.tables.n_valid[ctx.ot, s]
+    j = jnp.clip(jnp.floor(u[:, 1] * nv).astype(jnp.int32), 0, jnp.maximum(nv - 1, 0))
+    explore = ctx.tables.order[ctx.ot, s, j]  # uniform over the valid grasps
+    g = jnp.where(u[:, 0] < ctx.hp.epsilon, explore, greedy)
+    return g, g
+
+
+def update(st: TQLState, ctx: Ctx, cfg: Config, s, grasp, slot, reward, live):
+    bi = jnp.arange(s.shape[0])
+    was = st.attempted[bi, s, slot]
+    q = st.Q[bi, s, slot]
+    dq = jnp.where(live, ctx.hp.eta * (reward.astype(jnp.float32) - q), 0.0)
+    st = TQLState(
+        Q=st.Q.at[bi, s, slot].add(dq),
+        attempted=st.attempted.at[bi, s, slot].set(was | live),
+    )
+    return st, live & ~was
+
+
+def recommend(st: TQLState, ctx: Ctx, cfg: Config, s):
+    return _greedy(gather_at(st.Q, s), ctx.tables.valid[ctx.ot, s])
+
+
+def recommend_init(st: TQLState, ctx: Ctx, cfg: Config):
+    return _greedy(st.Q, ctx.tables.valid[ctx.ot])
+
+
+def estimates(st: TQLState, ctx: Ctx, cfg: Config):
+    valid = ctx.tables.valid[ctx.ot]
+    out = []
+    for m in (valid, valid & st.attempted):
+        best = jnp.max(jnp.where(m, st.Q, -jnp.inf), axis=-1)
+        out.append(jnp.where(jnp.any(m, axis=-1), best, 0.0))
+    return out[0], out[1]
+
+
+def candidates(st: TQLState, ctx: Ctx, cfg: Config):
+    return ctx.tables.valid[ctx.ot]
+
+
+METHOD = Method(
+    name="tql",
+    description="Tabular Q-learning, ε-greedy over all K grasps",
+    init=init,
+    select=select,
+    update=update,
+    recommend=recommend,
+    recommend_init=recommend_init,
+    estimates=estimates,
+    candidates=candidates,
+)
