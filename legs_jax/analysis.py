@@ -1,0 +1,508 @@
+"""Numbers of the paper's tables and figures from saved results (SPEC §5, §7).
+
+Every function here is a pure function of the tidy tables a sweep writes
+(``runs``, ``curves``, ``checks``, ``active_set``, ``grasps``; see
+``legs_jax.results``): no I/O, no plotting, no randomness. The paper's own numbers
+are kept beside them (``PAPER_*``) so that tables and the report can show both.
+
+Aggregation (SPEC §5): per object, the mean over its T x R runs; per data set, the
+mean and standard error across objects. Standard errors are sample standard
+deviations (ddof = 1) divided by the square root of the count; NaN for one value.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+import pandas as pd
+
+__all__ = [
+    "ARM_LABELS",
+    "BOUNDS",
+    "COMPETITORS",
+    "HPARAM_COLUMNS",
+    "METHODS",
+    "PAPER_EARLY_STOPPING",
+    "PAPER_OBJECTS",
+    "PAPER_SWEEPS",
+    "PAPER_TABLE1",
+    "PAPER_WINS",
+    "SET_LABELS",
+    "WIN_TOLERANCE",
+    "AnalysisError",
+    "active_set_trace",
+    "arm_label",
+    "arms_of",
+    "bound_summary",
+    "learning_curves",
+    "object_gaps",
+    "order_sets",
+    "select_arm",
+    "sort_arms",
+    "stopping_sensitivity",
+    "sweep_table",
+    "table_one",
+    "win_counts",
+    "winners",
+]
+
+# Methods in the column order of the paper's Table I.
+METHODS = (
+    "dexnet",
+    "tql",
+    "borges_100",
+    "k100_ub",
+    "borges_2000",
+    "legs_no_as",
+    "legs",
+)
+# Methods compared for a "win" (SPEC §5): every learning method and Dex-Net; the
+# K=100 upper bound is an oracle row, not a method.
+COMPETITORS = ("dexnet", "tql", "borges_100", "borges_2000", "legs_no_as", "legs")
+WIN_TOLERANCE = 0.005
+HPARAM_COLUMNS = ("s", "prior_offset", "delta", "gamma", "k", "n", "epsilon", "eta")
+
+ARM_LABELS = {
+    ("dexnet", ""): "Dex-Net (synthetic prior)",
+    ("tql", ""): "TQL",
+    ("borges_100", ""): "BORGES (K_s=100)",
+    ("k100_ub", ""): "K_s=100 upper bound",
+    ("borges_2000", ""): "BORGES (K_s=2000)",
+    ("borges_2000", "orig_prior"): "BORGES (K_s=2000), original prior (s=5, offset 0)",
+    ("legs_no_as", ""): "LEGS(-AS)",
+    ("legs", ""): "LEGS",
+}
+SET_LABELS = {"dexnet_adv": "Dex-Net Adversarial", "egad_eval": "EGAD! evaluation"}
+# Object counts of the paper's data sets.
+PAPER_OBJECTS = {"dexnet_adv": 14, "egad_eval": 39}
+
+# Table I of the paper: optimality gap at H = 3000, mean and SE across objects.
+PAPER_TABLE1 = {
+    "dexnet_adv": {
+        "dexnet": (0.56, 0.07),
+        "tql": (0.23, 0.08),
+        "borges_100": (0.13, 0.07),
+        "k100_ub": (0.08, 0.04),
+        "borges_2000": (0.04, 0.03),
+        "legs_no_as": (0.22, 0.06),
+        "legs": (0.04, 0.03),
+    },
+    "egad_eval": {
+        "dexnet": (0.59, 0.03),
+        "tql": (0.32, 0.04),
+        "borges_100": (0.25, 0.04),
+        "k100_ub": (0.13, 0.03),
+        "borges_2000": (0.17, 0.03),
+        "legs_no_as": (0.28, 0.04),
+        "legs": (0.14, 0.03),
+    },
+}
+# Win counts stated in the paper (Section 5.3): (wins, objects).
+PAPER_WINS = {
+    "dexnet_adv": {"legs": (10, 14), "borges_2000": (5, 14)},
+    "egad_eval": {"legs": (25, 39), "borges_2000": (14, 39)},
+}
+# Section 5.4: accuracy and tightness of the stopping bound on the Dex-Net set.
+PAPER_EARLY_STOPPING = {"accuracy": 0.958, "tightness": 0.0297}
+# Appendix tables, LEGS on the bar clamp: value -> (mean, SE).
+PAPER_SWEEPS = {
+    "s": {
+        0.0: (0.285, 0.055),
+        1.0: (0.125, 0.036),
+        2.0: (0.128, 0.038),
+        3.0: (0.171, 0.041),
+        4.0: (0.148, 0.036),
+        5.0: (0.187, 0.042),
+    },
+    "delta": {
+        0.01: (0.129, 0.040),
+        0.05: (0.103, 0.031),
+        0.10: (0.156, 0.043),
+        0.15: (0.148, 0.041),
+        0.20: (0.214, 0.051),
+        0.25: (0.174, 0.044),
+    },
+}
+
+# Lower bounds of the stopping rule: name -> checks column. "all" is the paper's
+# formula (p-hat* over all candidates), "attempted" the variant over attempted
+# grasps only (SPEC §5).
+BOUNDS = {"all": "p_lower", "attempted": "p_lower_attempted"}
+
+_RUN_KEYS = ["object", "trial", "rollout"]
+
+
+class AnalysisError(ValueError):
+    """The results cannot give the requested number (missing column, no rows,
+    ambiguous configuration); the message says which."""
+
+
+# ------------------------------------------------------------------------ helpers
+def arm_label(method: str, variant: str = "") -> str:
+    """Display name of an arm; unknown variants are shown in brackets."""
+    if (method, variant) in ARM_LABELS:
+        return ARM_LABELS[(method, variant)]
+    base = ARM_LABELS.get((method, ""), method)
+    return f"{base} [{variant}]" if variant else base
+
+
+def _require(df: pd.DataFrame, columns: Iterable[str], what: str) -> None:
+    missing = [c for c in columns if c not in df.columns]
+    if missing:
+        raise AnalysisError(f"{what} lacks the column(s) {', '.join(missing)}")
+
+
+def _se(values: np.ndarray) -> float:
+    values = np.asarray(values, np.float64)
+    if values.size < 2:
+        return float("nan")
+    return float(values.std(ddof=1) / np.sqrt(values.size))
+
+
+def order_sets(sets: Iterable[str]) -> list[str]:
+    """The paper's sets first (Dex-Net, EGAD), then any other set by name."""
+    sets = list(dict.fromkeys(sets))
+    known = [s for s in SET_LABELS if s in sets]
+    return known + sorted(s for s in sets if s not in SET_LABELS)
+
+
+def _arm_rank(method: str, variant: str) -> tuple[int, int, str]:
+    m = METHODS.index(method) if method in METHODS else len(METHODS)
+    return (m, 0 if variant == "" else 1, variant)
+
+
+def sort_arms(arms: Iterable[tuple[str, str]]) -> list[tuple[str, str]]:
+    """(method, variant) pairs, unique, in Table I order (variants after their
+    method's default)."""
+    return sorted(set(arms), key=lambda a: (_arm_rank(*a), a[0]))
+
+
+def arms_of(df: pd.DataFrame) -> list[tuple[str, str]]:
+    """The arms present in a table with ``method`` and ``variant`` columns."""
+    return sort_arms(zip(df["method"], df["variant"], strict=True))
+
+
+def select_arm(
+    df: pd.DataFrame,
+    method: str,
+    variant: str = "",
+    *,
+    vary: Sequence[str] = (),
+    **hparams: float,
+) -> pd.DataFrame:
+    """Rows of one arm (and, if given, hyperparameter values); refuses rows that
+    hold several settings of the hyperparameters not named in ``vary``."""
+    _require(df, ["method", "variant"], "the table")
+    sel = (df["method"] == method) & (df["variant"] == variant)
+    for name, value in hparams.items():
+        _require(df, [name], "the table")
+        sel &= np.isclose(df[name].to_numpy(np.float64), float(value))
+    out = df.loc[sel]
+    hp = [c for c in HPARAM_COLUMNS if c in out.columns and c not in vary]
+    if hp and len(out) and len(out[hp].drop_duplicates()) > 1:
+        raise AnalysisError(
+            f"rows of {method!r} (variant {variant!r}) hold several hyperparameter "
+            f"settings; select one"
+        )
+    return out
+
+
+# ------------------------------------------------------------------------ Table I
+def object_gaps(runs: pd.DataFrame) -> pd.DataFrame:
+    """Per object and arm: mean and standard error of the final gap over its runs.
+
+    Returns columns ``set, object, method, variant, n_runs, gap_mean, gap_se``,
+    sets in ``order_sets`` order, objects in order of first appearance, arms in
+    Table I order.
+    """
+    _require(
+        runs,
+        ["set", "object", "method", "variant", "final_gap"],
+        "runs.parquet",
+    )
+    if runs.empty:
+        raise AnalysisError("runs.parquet has no rows")
+    hp = [c for c in HPARAM_COLUMNS if c in runs.columns]
+    if hp:
+        n_cfg = runs.groupby(["object", "method", "variant"], sort=False)[hp].apply(
+            lambda g: len(g.drop_duplicates())
+        )
+        multi = n_cfg[n_cfg > 1]
+        if len(multi):
+            obj, method, variant = multi.index[0]
+            raise AnalysisError(
+                f"runs of {method!r} (variant {variant!r}) on {obj!r} hold several "
+                "hyperparameter settings; Table I needs one per arm"
+            )
+    rows = []
+    for (set_, obj, method, variant), g in runs.groupby(
+        ["set", "object", "method", "variant"], sort=False
+    ):
+        v = g["final_gap"].to_numpy(np.float64)
+        rows.append((set_, obj, method, variant, v.size, float(v.mean()), _se(v)))
+    out = pd.DataFrame(
+        rows,
+        columns=["set", "object", "method", "variant", "n_runs", "gap_mean", "gap_se"],
+    )
+    set_rank = {s: i for i, s in enumerate(order_sets(out["set"]))}
+    obj_rank = {o: i for i, o in enumerate(dict.fromkeys(runs["object"]))}
+    key = pd.DataFrame(
+        {
+            "s": out["set"].map(set_rank),
+            "o": out["object"].map(obj_rank),
+            "a": [
+                _arm_rank(m, v)
+                for m, v in zip(out["method"], out["variant"], strict=True)
+            ],
+        }
+    )
+    idx = sorted(range(len(out)), key=lambda i: (key["s"][i], key["o"][i], key["a"][i]))
+    return out.iloc[idx].reset_index(drop=True)
+
+
+def table_one(gaps: pd.DataFrame) -> pd.DataFrame:
+    """Table I from ``object_gaps``: per set and arm, the mean and standard error
+    across objects of the per-object mean final gap.
+
+    Returns columns ``set, method, variant, n_objects, mean, se``.
+    """
+    rows = []
+    for set_ in order_sets(gaps["set"]):
+        g = gaps[gaps["set"] == set_]
+        for method, variant in arms_of(g):
+            v = g.loc[
+                (g["method"] == method) & (g["variant"] == variant), "gap_mean"
+            ].to_numpy(np.float64)
+            rows.append((set_, method, variant, v.size, float(v.mean()), _se(v)))
+    return pd.DataFrame(
+        rows, columns=["set", "method", "variant", "n_objects", "mean", "se"]
+    )
+
+
+def winners(
+    gaps: pd.DataFrame,
+    tolerance: float = WIN_TOLERANCE,
+    competitors: Sequence[str] = COMPETITORS,
+) -> pd.DataFrame:
+    """Per object, which methods "win" (SPEC §5): a method wins an object when its
+    mean final gap is at most every other competitor's + ``tolerance``.
+
+    Only default-configuration arms (variant "") compete. Objects lacking any
+    competitor are left out. Returns ``set, object`` and one bool column per
+    competitor.
+    """
+    base = gaps[(gaps["variant"] == "") & gaps["method"].isin(competitors)]
+    wide = base.pivot_table(
+        index=["set", "object"], columns="method", values="gap_mean", sort=False
+    )
+    wide = wide.dropna(axis=0, how="any")
+    missing = [m for m in competitors if m not in wide.columns]
+    if missing or wide.empty:
+        return pd.DataFrame(columns=["set", "object", *competitors])
+    vals = wide[list(competitors)].to_numpy(np.float64)  # [O, M]
+    out = wide.index.to_frame(index=False)
+    for j, m in enumerate(competitors):
+        others = np.delete(vals, j, axis=1).min(axis=1)
+        out[m] = vals[:, j] <= others + tolerance
+    return out
+
+
+def win_counts(
+    gaps: pd.DataFrame,
+    tolerance: float = WIN_TOLERANCE,
+    competitors: Sequence[str] = COMPETITORS,
+) -> pd.DataFrame:
+    """Wins per set and competitor: ``set, method, wins, n_objects`` (objects that
+    have every competitor), with ``n_total`` the objects of the set in ``gaps``."""
+    w = winners(gaps, tolerance, competitors)
+    rows = []
+    for set_ in order_sets(gaps["set"]):
+        n_total = int(gaps.loc[gaps["set"] == set_, "object"].nunique())
+        ws = w[w["set"] == set_]
+        for m in competitors:
+            wins = int(ws[m].sum()) if len(ws) else 0
+            rows.append((set_, m, wins, len(ws), n_total))
+    return pd.DataFrame(rows, columns=["set", "method", "wins", "n_objects", "n_total"])
+
+
+# ------------------------------------------------------------------ early stopping
+def _bound_columns(checks: pd.DataFrame) -> dict[str, str]:
+    """Bounds present in ``checks`` (a column with at least one finite value)."""
+    out = {}
+    for name, col in BOUNDS.items():
+        if col in checks.columns and np.isfinite(checks[col].to_numpy(float)).any():
+            out[name] = col
+    return out
+
+
+def bound_summary(checks: pd.DataFrame, by_object: bool = False) -> pd.DataFrame:
+    """Accuracy and tightness of the stopping bound (SPEC §5).
+
+    Accuracy: fraction of checks with lower bound <= true performance. Tightness:
+    mean of (true performance - lower bound) over checks. Pooled over every check
+    (``by_object=False``) or per object. Returns ``bound`` ("all" = the paper's
+    formula, "attempted" = over attempted grasps), optionally ``object``,
+    ``n_checks``, ``accuracy``, ``tightness``.
+    """
+    _require(checks, ["object", "step", "true_performance"], "checks.parquet")
+    cols = _bound_columns(checks)
+    if not cols or checks.empty:
+        raise AnalysisError("checks.parquet has no Dirichlet checks")
+    rows = []
+    for name, col in cols.items():
+        d = checks[["object", "true_performance", col]].dropna()
+        groups = d.groupby("object", sort=False) if by_object else [(None, d)]
+        for obj, g in groups:
+            lo = g[col].to_numpy(np.float64)
+            tp = g["true_performance"].to_numpy(np.float64)
+            row = {"bound": name}
+            if by_object:
+                row["object"] = obj
+            row.update(
+                n_checks=lo.size,
+                accuracy=float(np.mean(lo <= tp)),
+                tightness=float(np.mean(tp - lo)),
+            )
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def stopping_sensitivity(
+    checks: pd.DataFrame, rho_min: Sequence[float], horizon: int
+) -> pd.DataFrame:
+    """Early stopping against the threshold rho_min (Fig. 4, SPEC §5).
+
+    Each run (object, trial, rollout) stops at its first check whose lower bound
+    is >= rho_min. Accuracy is the fraction of stopped runs whose true performance
+    at that check is >= rho_min (NaN when none stopped); the stopping step is
+    ``horizon`` for a run that never stops. Returns ``bound, rho_min, n_runs,
+    n_stopped, frac_stopped, accuracy, mean_stop_step, se_stop_step``.
+    """
+    _require(checks, [*_RUN_KEYS, "step", "true_performance"], "checks.parquet")
+    cols = _bound_columns(checks)
+    if not cols or checks.empty:
+        raise AnalysisError("checks.parquet has no Dirichlet checks")
+    rows = []
+    for name, col in cols.items():
+        lo = checks.pivot_table(
+            index=_RUN_KEYS, columns="step", values=col, aggfunc="first"
+        )
+        tp = checks.pivot_table(
+            index=_RUN_KEYS, columns="step", values="true_performance", aggfunc="first"
+        ).reindex(index=lo.index, columns=lo.columns)
+        steps = lo.columns.to_numpy(np.int64)
+        L = lo.to_numpy(np.float64)  # [runs, checks]
+        V = tp.to_numpy(np.float64)
+        for rho in rho_min:
+            hit = np.nan_to_num(L, nan=-np.inf) >= rho
+            stopped = hit.any(axis=1)
+            first = hit.argmax(axis=1)
+            stop_step = np.where(stopped, steps[first], horizon).astype(np.float64)
+            perf = V[np.arange(len(V)), first][stopped]
+            n_stop = int(stopped.sum())
+            rows.append(
+                dict(
+                    bound=name,
+                    rho_min=float(rho),
+                    n_runs=len(L),
+                    n_stopped=n_stop,
+                    frac_stopped=n_stop / len(L) if len(L) else float("nan"),
+                    accuracy=float(np.mean(perf >= rho)) if n_stop else float("nan"),
+                    mean_stop_step=float(stop_step.mean()),
+                    se_stop_step=_se(stop_step),
+                )
+            )
+    return pd.DataFrame(rows)
+
+
+# ------------------------------------------------------------- appendix sweeps
+def sweep_table(runs: pd.DataFrame, param: str) -> pd.DataFrame:
+    """Final gap against one swept hyperparameter (the appendix tables).
+
+    Per object and value of ``param``: ``n_runs``, ``mean`` and ``se`` of the final
+    gap over the runs (one object, so the standard error is over its T x R runs).
+    Returns ``object, <param>, n_runs, mean, se`` sorted by object and value.
+    """
+    _require(runs, ["object", param, "final_gap"], "runs.parquet")
+    if runs.empty:
+        raise AnalysisError("runs.parquet has no rows")
+    rows = []
+    for (obj, value), g in runs.groupby(["object", param], sort=True):
+        v = g["final_gap"].to_numpy(np.float64)
+        rows.append((obj, float(value), v.size, float(v.mean()), _se(v)))
+    return pd.DataFrame(rows, columns=["object", param, "n_runs", "mean", "se"])
+
+
+# ---------------------------------------------------------------- case study
+def learning_curves(curves: pd.DataFrame, obj: str) -> pd.DataFrame:
+    """Learning curves of every arm on one object: ``method, variant, step,
+    gap_mean, gap_se, n_runs`` in Table I arm order and step order."""
+    _require(
+        curves,
+        ["object", "method", "variant", "step", "gap_mean", "gap_se"],
+        "curves.parquet",
+    )
+    c = curves[curves["object"] == obj]
+    out = []
+    for method, variant in arms_of(c):
+        g = select_arm(c, method, variant).sort_values("step")
+        out.append(g)
+    if not out:
+        return c.iloc[0:0]
+    cols = ["method", "variant", "step", "gap_mean", "gap_se"]
+    if "n_runs" in c.columns:
+        cols.append("n_runs")
+    return pd.concat(out, ignore_index=True)[cols]
+
+
+def active_set_trace(
+    active_set: pd.DataFrame,
+    obj: str,
+    pose: int | None = None,
+    grasps: pd.DataFrame | None = None,
+) -> tuple[int, pd.DataFrame, pd.DataFrame]:
+    """The active set of one LEGS rollout on one pose over time (Fig. 1, bottom).
+
+    ``pose`` defaults to the pose present at the most checks (ties: the most
+    likely landing pose when ``grasps`` gives landing probabilities, then the
+    lowest index). Returns (pose, members, summary): members has one row per
+    filled slot and check (``step, slot, grasp, robustness``); summary one row
+    per check: ``step, n_members, best, mean``, plus ``p_star`` (best robustness
+    of the pose's reservoir) when ``grasps`` is given.
+    """
+    _require(active_set, ["object", "step", "pose", "slot", "robustness"], "active_set")
+    a = active_set[active_set["object"] == obj]
+    if "method" in a.columns:
+        a = a[a["method"] == "legs"]
+    if "grid_index" in a.columns and len(a):
+        a = a[a["grid_index"] == a["grid_index"].min()]
+    for c in ("trial", "rollout"):
+        if c in a.columns and len(a):
+            a = a[a[c] == a[c].min()]
+    if a.empty:
+        raise AnalysisError(f"active_set.parquet has no LEGS rows for {obj!r}")
+    if pose is None:
+        n_checks = a.groupby("pose")["step"].nunique()
+        landing = pd.Series(0.0, index=n_checks.index)
+        if grasps is not None and "landing" in grasps.columns:
+            g = grasps[grasps["object"] == obj]
+            lam = g.groupby("pose")["landing"].first()
+            landing = lam.reindex(n_checks.index).fillna(0.0)
+        key = sorted(n_checks.index, key=lambda p: (-n_checks[p], -landing[p], int(p)))
+        pose = int(key[0])
+    m = a[a["pose"] == pose].sort_values(["step", "slot"])
+    cols = [c for c in ("step", "slot", "grasp", "robustness") if c in m.columns]
+    members = m[cols].reset_index(drop=True)
+    summary = (
+        members.groupby("step")["robustness"]
+        .agg(n_members="size", best="max", mean="mean")
+        .reset_index()
+    )
+    if grasps is not None:
+        g = grasps[(grasps["object"] == obj) & (grasps["pose"] == pose)]
+        if "trial" in g.columns and len(g):
+            g = g[g["trial"] == g["trial"].min()]
+        if len(g):
+            summary["p_star"] = float(g["robustness"].max())
+    return pose, members, summary
