@@ -373,17 +373,9 @@ def _catalog():
 
 def _name_object_id(name: str) -> int:
     """Stable object id of a problem outside the catalogue (SPEC §2 contract)."""
-    try:
-        from legs_jax import keys
+    from legs_jax.keys import object_id_from_name
 
-        fn = getattr(keys, "object_id_for_name", None) or getattr(keys, "name_id", None)
-    except ImportError:
-        fn = None
-    if fn is not None:
-        return int(fn(name))
-    return int.from_bytes(hashlib.sha256(name.encode()).digest()[:8], "little") % (
-        2**31
-    )
+    return int(object_id_from_name(name))
 
 
 def _peek_shapes(path: str | os.PathLike) -> dict[str, tuple[int, ...]]:
@@ -626,6 +618,13 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="print the plan (chunks, rollouts) and exit",
     )
+    out.add_argument(
+        "--compile-cache",
+        metavar="DIR",
+        help="JAX persistent compilation cache, so that resumed and repeated sweeps "
+        "skip compiling (default $JAX_COMPILATION_CACHE_DIR, else "
+        "$XDG_CACHE_HOME/legs_jax/jax or ~/.cache/legs_jax/jax; 'off' disables)",
+    )
     out.add_argument("--quiet", action="store_true", help="no progress bar")
     dist = p.add_argument_group("multi-host (jax.distributed)")
     dist.add_argument("--coordinator", metavar="HOST:PORT", help="coordinator address")
@@ -659,6 +658,26 @@ def _validate_args(p: argparse.ArgumentParser, a: argparse.Namespace) -> None:
         p.error("--coordinator, --num-processes and --process-id go together")
     if a.num_processes is not None and a.process_id >= a.num_processes:
         p.error(f"--process-id must be < --num-processes ({a.num_processes})")
+
+
+def _compile_cache(option: str | None) -> str | None:
+    """Turn on JAX's persistent compilation cache (results do not depend on it)."""
+    if option == "off":
+        return None
+    path = option or os.environ.get("JAX_COMPILATION_CACHE_DIR")
+    if not path:
+        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(
+            os.path.expanduser("~"), ".cache"
+        )
+        path = os.path.join(base, "legs_jax", "jax")
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError:
+        return None  # a read-only home: run without the cache
+    import jax
+
+    jax.config.update("jax_compilation_cache_dir", path)
+    return path
 
 
 def _set_device_flags(n: int | None) -> None:
@@ -858,18 +877,13 @@ def _run_chunk(
     arm = plan.arms[chunk.arm]
     objs = [plan.objects[i] for i in chunk.objects]
     problems = [cache.get(o.path) for o in objs]
+    # The engine takes trial indices into the batch's T axis, and they are also
+    # the trial numbers of the rollout keys: stack trials 0..max and select.
     batch = problem_mod.stack(
         problems,
         num_poses=chunk.num_poses,
         num_grasps=chunk.num_grasps,
         num_trials=max(chunk.trials) + 1,
-    )
-    t = np.asarray(chunk.trials)
-    batch = dataclasses.replace(
-        batch,
-        robustness=batch.robustness[:, t],
-        prior=batch.prior[:, t],
-        valid=batch.valid[:, t],
     )
     result = _engine().run(
         batch,
@@ -881,7 +895,7 @@ def _run_chunk(
         hparams=arm.engine_hparams(),
         seed=plan.seed,
         record_every=plan.record_every,
-        check_every=plan.check_every,
+        check_every=plan.check_every if chunk.record_checks else None,
         stop_variant_attempted=True,
         record_active_set=chunk.record_active_set,
         devices=devices,
@@ -899,7 +913,7 @@ def _run_chunk(
         horizon=plan.horizon,
         record_checks=chunk.record_checks,
         record_active_set=chunk.record_active_set,
-        robustness=batch.robustness,
+        robustness=batch.robustness[:, list(chunk.trials)],
     )
     return res.chunk_tables(result, ctx), np.asarray(result.curve_steps).tolist()
 
@@ -920,7 +934,7 @@ class _Progress:
             total=max(total_work, 1.0),
             disable=quiet,
             desc=desc,
-            bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}<{remaining}, "
+            bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}<{remaining}"
             "{postfix}",
             dynamic_ncols=True,
             mininterval=0.5,
@@ -959,10 +973,11 @@ class _Progress:
         self.bar.close()
 
 
-def _engine_progress(bar: _Progress) -> Callable[..., None]:
-    def cb(done, total=None):
-        f = done if total is None else done / max(total, 1)
-        bar.fraction(f)
+def _engine_progress(bar: _Progress, rollouts: int) -> Callable[[int], None]:
+    """The engine reports the number of rollouts done after each mini-batch."""
+
+    def cb(done: int) -> None:
+        bar.fraction(done / max(rollouts, 1))
 
     return cb
 
@@ -1109,7 +1124,7 @@ def _merge(plan: ExperimentPlan, d: Path) -> dict[str, int]:
             "object_id": np.array([o.object_id for o in plan.objects], np.int64),
             "num_poses": np.array([o.num_poses for o in plan.objects], np.int64),
             "num_grasps": np.array([o.num_grasps for o in plan.objects], np.int64),
-            "problem_file": [o.path for o in plan.objects],
+            "problem_file": [_display_path(o.path, d.parent) for o in plan.objects],
             "sha256": [o.sha256 for o in plan.objects],
         }
     )
@@ -1117,6 +1132,14 @@ def _merge(plan: ExperimentPlan, d: Path) -> dict[str, int]:
     if plan.active_set_methods:
         res.atomic_write_parquet(_grasps_table(plan), d / "grasps.parquet")
     return {k: len(v) for k, v in tables.items()}
+
+
+def _display_path(path: str, out: Path) -> str:
+    """``path`` relative to the output folder when it lies inside it."""
+    try:
+        return Path(path).resolve().relative_to(out.resolve()).as_posix()
+    except ValueError:
+        return str(path)
 
 
 def _grasps_table(plan: ExperimentPlan):
@@ -1246,7 +1269,7 @@ def run_experiment(
             bar.begin_chunk(c.work)
             t0 = time.perf_counter()
             tables, curve_steps = _run_chunk(
-                plan, c, cache, devices, _engine_progress(bar)
+                plan, c, cache, devices, _engine_progress(bar, c.rollouts)
             )
             wall = time.perf_counter() - t0
             meta = {
@@ -1338,6 +1361,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         dist = _init_distributed(a)
         devices = _devices(a.devices)
+        _compile_cache(a.compile_cache)
         catalog = _catalog()
         plans = []
         for name in names:

@@ -70,7 +70,10 @@ def fake_run(
     steps1 = np.arange(0, horizon + 1, record_every)
     if steps1[-1] != horizon:
         steps1 = np.append(steps1, horizon)
-    steps2 = np.arange(check_every, horizon + 1, check_every)
+    if check_every and check_every <= horizon:
+        steps2 = np.arange(check_every, horizon + 1, check_every)
+    else:
+        steps2 = np.zeros(0, np.int64)
     G, C1, C2, k = len(grid), len(steps1), len(steps2), 5
     shape = (G, O, len(trials), R)
     out = {
@@ -107,9 +110,10 @@ def fake_run(
                     a = rng.integers(-1, K, size=(C2, P, k))
                     a[:, ~batch.pose_valid[o]] = -1
                     out["active_set"][i] = a
-    if progress is not None:
-        progress(0.5)
-        progress(1.0)
+    if callable(progress):
+        total = G * O * len(trials) * R
+        progress(total // 2)
+        progress(total)
     if calls is not None:
         calls.append((method, tuple(object_ids), tuple(trials)))
     return FakeResult(

@@ -332,7 +332,7 @@ def test_write_chunk_is_atomic(tmp_path, monkeypatch):
 
 # ------------------------------------------------------------------- CLI, fake
 def _cli(args, capsys):
-    code = sweep.main([*args, "--quiet"])
+    code = sweep.main([*args, "--quiet", "--compile-cache", "off"])
     return code, capsys.readouterr().err
 
 

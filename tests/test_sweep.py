@@ -1,0 +1,163 @@
+"""The sweep command end to end with the real engine, in subprocesses.
+
+- ``--smoke`` runs every experiment and writes the documented tables.
+- A sweep killed with SIGKILL after its first chunk, then resumed, gives the same
+  bytes as an uninterrupted one.
+- Four forced CPU devices give the same bytes as one.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+pytest.importorskip("legs_jax.engine")
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _env(devices: int | None = None) -> dict[str, str]:
+    env = dict(os.environ)
+    flags = [
+        f
+        for f in env.get("XLA_FLAGS", "").split()
+        if "xla_force_host_platform_device_count" not in f
+    ]
+    if devices:
+        flags.append(f"--xla_force_host_platform_device_count={devices}")
+    env["XLA_FLAGS"] = " ".join(flags)
+    env["JAX_PLATFORMS"] = "cpu"
+    return env
+
+
+def _sweep(args, env, timeout=300) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "legs_jax.sweep", *args],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def _tables(folder: Path) -> dict[str, bytes]:
+    """Every merged result file's bytes (chunk folders and manifests excluded)."""
+    return {
+        p.relative_to(folder).as_posix(): p.read_bytes()
+        for p in sorted(folder.rglob("*.parquet"))
+        if "chunks" not in p.parts
+    }
+
+
+def test_smoke_runs_every_experiment(tmp_path):
+    t0 = time.perf_counter()
+    p = _sweep(["--smoke", "--out", str(tmp_path)], _env())
+    wall = time.perf_counter() - t0
+    assert p.returncode == 0, p.stderr[-3000:]
+    names = ["main", "case_study", "early_stopping", "prior_strength", "confidence"]
+    assert sorted(d.name for d in tmp_path.iterdir() if d.name[0] != "_") == sorted(
+        names
+    )
+    for name in names:
+        d = tmp_path / name
+        man = json.loads((d / "manifest.json").read_text())
+        assert man["status"] == "complete" and man["config"]["smoke"] is True
+        runs = pd.read_parquet(d / "runs.parquet")
+        curves = pd.read_parquet(d / "curves.parquet")
+        checks = pd.read_parquet(d / "checks.parquet")
+        assert runs.final_gap.between(0, 1).all()
+        assert (runs.horizon == 200).all() and set(runs.trial) == {0}
+        assert set(runs.rollout) == {0, 1}
+        assert set(curves.step) == set(range(0, 201, 10))
+        assert (curves.n_runs == 2).all()
+        # The curve's last point is the mean final gap of the same runs.
+        last = curves[curves.step == 200].set_index(["object", "method", "s", "delta"])
+        mean = runs.groupby(["object", "method", "s", "delta"]).final_gap.mean()
+        pd.testing.assert_series_equal(
+            last.gap_mean.sort_index(), mean.sort_index(), check_names=False
+        )
+        assert set(checks.step) <= {100, 200}
+    main = pd.read_parquet(tmp_path / "main/runs.parquet")
+    assert set(main.method) == {
+        "dexnet",
+        "k100_ub",
+        "borges_100",
+        "borges_2000",
+        "legs_no_as",
+        "legs",
+        "tql",
+    }
+    assert set(main[main.variant == "orig_prior"].method) == {"borges_2000"}
+    act = pd.read_parquet(tmp_path / "case_study/active_set.parquet")
+    assert len(act) > 0 and set(act.method) == {"legs"}
+    assert act.grasp.ge(0).all() and act.robustness.between(0, 1).all()
+    es = pd.read_parquet(tmp_path / "early_stopping/checks.parquet")
+    assert es.p_lower_attempted.notna().all() and es.p_lower.between(0, 1).all()
+    conf = pd.read_parquet(tmp_path / "confidence/runs.parquet")
+    assert sorted(set(conf.delta)) == [0.01, 0.05, 0.1, 0.15, 0.2, 0.25]
+    ps = pd.read_parquet(tmp_path / "prior_strength/runs.parquet")
+    assert sorted(set(ps.s)) == [0, 1, 2, 3, 4, 5] and set(ps.delta) == {0.07}
+    print(f"smoke wall time {wall:.1f} s")
+    # A second run finds everything done and changes nothing.
+    before = _tables(tmp_path)
+    p = _sweep(["--smoke", "--out", str(tmp_path)], _env())
+    assert p.returncode == 0, p.stderr[-3000:]
+    assert _tables(tmp_path) == before
+
+
+def test_sigkill_then_resume_equals_uninterrupted(tmp_path):
+    args = ["--smoke", "--experiment", "main", "--methods", "dexnet", "legs", "tql"]
+    ref = _sweep([*args, "--out", str(tmp_path / "ref")], _env())
+    assert ref.returncode == 0, ref.stderr[-3000:]
+
+    out = tmp_path / "killed"
+    chunks = out / "main" / "chunks"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "legs_jax.sweep", *args, "--out", str(out)],
+        cwd=ROOT,
+        env=_env(),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        deadline = time.time() + 240
+        while time.time() < deadline and proc.poll() is None:
+            if chunks.is_dir() and any(chunks.glob("*/chunk.json")):
+                break
+            time.sleep(0.05)
+        assert proc.poll() is None, "the sweep finished before it could be killed"
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    done = sorted(d.name for d in chunks.glob("*") if (d / "chunk.json").is_file())
+    assert 1 <= len(done) < 3
+    assert not (out / "main" / "runs.parquet").exists()
+    res = _sweep([*args, "--out", str(out)], _env())
+    assert res.returncode == 0, res.stderr[-3000:]
+    man = json.loads((out / "main/manifest.json").read_text())
+    assert man["status"] == "complete"
+    assert sum(s.get("chunks_computed", 0) for s in man["sessions"]) == 3 - len(done)
+    assert not list(chunks.glob(".tmp-*"))
+    assert _tables(out) == _tables(tmp_path / "ref")
+
+
+def test_four_cpu_devices_equal_one(tmp_path):
+    args = ["--smoke", "--experiment", "main", "--methods", "borges_2000", "legs"]
+    one = _sweep([*args, "--out", str(tmp_path / "one")], _env(1))
+    assert one.returncode == 0, one.stderr[-3000:]
+    four = _sweep([*args, "--out", str(tmp_path / "four")], _env(4))
+    assert four.returncode == 0, four.stderr[-3000:]
+    man = json.loads((tmp_path / "four/main/manifest.json").read_text())
+    assert man["sessions"][-1]["devices"]["count"] == 4
+    assert _tables(tmp_path / "four") == _tables(tmp_path / "one")
