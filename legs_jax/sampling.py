@@ -1,18 +1,282 @@
-"""Exact random variates and quantiles used by the engine.
+"""Exact random variates and quantiles used by the engine, fast on CPU and GPU.
 
-Every sampler takes one key per row (``keys: [B]``) and the row's values depend only
-on its own key and parameters, so results never depend on batch size, batch order or
-device count.
+Every sampler takes one key per row (``keys: [B]``) and a row's values depend only on
+its own key and parameters, so results never depend on batch size, batch order or
+device count. Within a row, element ``j`` of a draw depends only on the key, ``j``
+and that element's parameters (not on the row's width).
 
-(Baseline implementation: correct and exact but not yet tuned for speed.)
+How the samplers are built (all plain ``jnp`` ops, so XLA fuses them):
+
+- Random words: Threefry-2x32 (20 rounds, the generator behind ``jax.random``),
+  written out with ``jnp`` integer ops and evaluated on a counter
+  ``(element index, stream | try)`` under the row's key. It is bit-identical to
+  ``jax.extend.random.threefry_2x32``.
+- Gamma(a), a >= 1: Marsaglia & Tsang (2000). The normal comes from ``erf_inv`` of a
+  24-bit uniform; the acceptance test is written with ``log1p`` so that it does not
+  lose precision for large shapes. Every element gets one try in bulk; the few
+  rejected elements (0.3-2.7 %) are then packed per row into a small buffer and
+  retried there, a few tries at a time, inside a ``lax.while_loop`` until none is
+  left. The tries of an element come from its own counter sequence, and an element
+  keeps its first accepted try, so the result is an exact Gamma draw, independent
+  of every other element and of the rest of the batch.
+- Gamma(a), 0 < a < 1: the boost G(a) = G(a + 1) * U^(1/a), in log space.
+- Beta(a, b) = G_a / (G_a + G_b).
+- Beta quantiles: safeguarded Newton-Halley on a float32 regularised incomplete beta
+  function whose log prefactor is computed from Stirling's series (accurate for
+  shapes in the thousands, where ``lgamma`` in float32 is not).
 """
 
 from __future__ import annotations
 
+import math
+
 import jax
 import jax.numpy as jnp
 
-__all__ = ["beta_rows", "beta_ppf", "dirichlet_lower_bound"]
+__all__ = [
+    "argmax_first",
+    "beta_ppf",
+    "beta_rows",
+    "betainc",
+    "dirichlet_lower_bound",
+    "gamma_rows",
+    "key_words",
+    "threefry2x32",
+    "uniform_bits",
+    "uniform_rows",
+]
+
+# Counter streams: the high byte of the second counter word. A try number or a
+# word index fills the low 24 bits.
+_STREAM_GAMMA_A = 0
+_STREAM_GAMMA_B = 1
+_STREAM_BOOST = 2
+_STREAM_UNIFORM = 3
+_STREAM_SHIFT = 24
+
+# Shapes below this are treated as this (Beta(a, b) with a -> 0 tends to a point
+# mass at 0; the clamp keeps draws and quantiles finite).
+_MIN_SHAPE = 1e-30
+
+
+# --------------------------------------------------------------------------------------
+# Random words
+# --------------------------------------------------------------------------------------
+
+
+def _rotl(x: jax.Array, r: int) -> jax.Array:
+    return (x << jnp.uint32(r)) | (x >> jnp.uint32(32 - r))
+
+
+def threefry2x32(
+    k0: jax.Array, k1: jax.Array, x0: jax.Array, x1: jax.Array
+) -> tuple[jax.Array, jax.Array]:
+    """Threefry-2x32 (20 rounds) of the counter (x0, x1) under the key (k0, k1).
+
+    All arguments are uint32 arrays that broadcast together; returns two uint32
+    arrays of the broadcast shape. Bit-identical to the generator of ``jax.random``.
+    """
+    k0 = jnp.asarray(k0, jnp.uint32)
+    k1 = jnp.asarray(k1, jnp.uint32)
+    k2 = k0 ^ k1 ^ jnp.uint32(0x1BD11BDA)
+    ks = (k0, k1, k2)
+    rotations = ((13, 15, 26, 6), (17, 29, 16, 24))
+    x0 = jnp.asarray(x0, jnp.uint32) + k0
+    x1 = jnp.asarray(x1, jnp.uint32) + k1
+    for i in range(5):
+        for r in rotations[i % 2]:
+            x0 = x0 + x1
+            x1 = _rotl(x1, r)
+            x1 = x1 ^ x0
+        x0 = x0 + ks[(i + 1) % 3]
+        x1 = x1 + ks[(i + 2) % 3] + jnp.uint32(i + 1)
+    return x0, x1
+
+
+def key_words(keys: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """The two uint32 key words of each of ``keys`` [B], as two [B, 1] arrays.
+
+    Accepts typed Threefry keys (``jax.random.key``) or raw uint32 keys [B, 2].
+    """
+    if jnp.issubdtype(keys.dtype, jax.dtypes.prng_key):
+        data = jax.random.key_data(keys)
+    else:
+        data = jnp.asarray(keys)
+    if data.ndim != 2 or data.shape[-1] != 2 or data.dtype != jnp.uint32:
+        raise ValueError(
+            "expected one Threefry key per row (typed keys of shape [B] or uint32 "
+            f"[B, 2]); got key data of shape {data.shape} and dtype {data.dtype}"
+        )
+    return data[:, 0:1], data[:, 1:2]
+
+
+def _counter_words(k0: jax.Array, k1: jax.Array, n: int, stream: int) -> jax.Array:
+    """[B, n] random words: word j is half of Threefry((j // 2, stream << 24))."""
+    half = (n + 1) // 2
+    j = jnp.arange(half, dtype=jnp.uint32)[None]
+    w0, w1 = threefry2x32(k0, k1, j, jnp.uint32(stream << _STREAM_SHIFT))
+    return jnp.stack([w0, w1], axis=-1).reshape(k0.shape[0], 2 * half)[:, :n]
+
+
+def uniform_bits(keys: jax.Array, n: int) -> jax.Array:
+    """[B, n] uint32 random words, one row per key (keys consumed).
+
+    Word j of a row does not depend on n (a prefix of a longer draw is the shorter
+    draw).
+    """
+    k0, k1 = key_words(keys)
+    return _counter_words(k0, k1, n, _STREAM_UNIFORM)
+
+
+def _open_unit(bits: jax.Array) -> jax.Array:
+    """Uniform on the open interval (0, 1) from the top 24 bits of a word."""
+    return ((bits >> jnp.uint32(8)).astype(jnp.float32) + 0.5) * jnp.float32(2.0**-24)
+
+
+def uniform_rows(keys: jax.Array, n: int) -> jax.Array:
+    """[B, n] float32 uniforms on the open interval (0, 1) (24 random bits each)."""
+    return _open_unit(uniform_bits(keys, n))
+
+
+# --------------------------------------------------------------------------------------
+# Gamma and Beta
+# --------------------------------------------------------------------------------------
+
+
+def _mt_try(d, c, w0, w1):
+    """One Marsaglia-Tsang try for Gamma(d + 1/3); returns (value, accepted)."""
+    # Standard normal from erf_inv of a uniform on (-1, 1).
+    s = ((w0 >> jnp.uint32(8)).astype(jnp.float32) + 0.5) * jnp.float32(2.0**-23) - 1.0
+    x = jnp.float32(math.sqrt(2.0)) * jax.lax.erf_inv(s)
+    u = _open_unit(w1)
+    w = c * x
+    ok_v = w > -1.0
+    lw = jnp.log1p(jnp.where(ok_v, w, 0.0))
+    # log acceptance threshold 0.5 x^2 + d - d v + d log v with v = (1 + w)^3,
+    # written so that the O(d) terms cancel analytically.
+    thr = 0.5 * x * x + d * (3.0 * (lw - w) - w * w * (3.0 + w))
+    ok = ok_v & (jnp.log(u) < thr)
+    v = (1.0 + w) * (1.0 + w) * (1.0 + w)
+    return d * v, ok
+
+
+def _select_bit(word: jax.Array, rank: jax.Array) -> jax.Array:
+    """Position of the set bit of rank ``rank`` (0-based, from bit 0) in ``word``."""
+    pos = jnp.zeros(word.shape, jnp.int32)
+    for width in (16, 8, 4, 2, 1):
+        low = word & jnp.uint32((1 << width) - 1)
+        count = jax.lax.population_count(low).astype(jnp.int32)
+        high = rank >= count
+        rank = jnp.where(high, rank - count, rank)
+        word = jnp.where(high, word >> jnp.uint32(width), low)
+        pos = pos + jnp.where(high, width, 0)
+    return pos
+
+
+def _pending_slots(pending: jax.Array, capacity: int) -> jax.Array:
+    """Indices of the first ``capacity`` True entries of ``pending``.
+
+    [M] bool -> [capacity] int32, padded with ``M``. The mask is packed into 32-bit
+    words, so the prefix sum runs over M / 32 entries.
+    """
+    (m,) = pending.shape
+    nw = -(-m // 32)
+    padded = jnp.pad(pending, (0, nw * 32 - m))
+    bits = padded.reshape(nw, 32).astype(jnp.uint32) << jnp.arange(32, dtype=jnp.uint32)
+    words = jnp.sum(bits, axis=1, dtype=jnp.uint32)  # [nw]
+    counts = jax.lax.population_count(words).astype(jnp.int32)
+    cum = jnp.cumsum(counts)  # inclusive
+    slot = jnp.arange(capacity, dtype=jnp.int32)
+    block = jnp.searchsorted(cum, slot, side="right")
+    valid = block < nw
+    block = jnp.minimum(block, nw - 1)
+    before = (cum - counts)[block]
+    pos = block * 32 + _select_bit(words[block], slot - before)
+    return jnp.where(valid, pos, m)
+
+
+def _gamma_ge1(k0, k1, a, ctr0, ctr1, tries_per_round=4, capacity=None):
+    """Gamma(a) draws for a >= 1 ([B, M] float32) with per-element counters.
+
+    ``ctr0`` and ``ctr1`` ([M] uint32) are the counter words of each element's first
+    try; try t uses ``ctr1 + t``. Every element takes the first accepted try of its
+    own sequence 0, 1, 2, ..., whatever the batch holds, so the values do not
+    depend on which rejected elements share a retry round.
+    """
+    rows, m = a.shape
+    d = a - jnp.float32(1.0 / 3.0)
+    c = jax.lax.rsqrt(9.0 * d)
+    w0, w1 = threefry2x32(k0, k1, ctr0[None], ctr1[None])
+    g, ok = _mt_try(d, c, w0, w1)
+    total = rows * m
+    if capacity is None:
+        capacity = total // 32 + 32
+    capacity = min(total, capacity)
+    d, c, g, ok = d.reshape(-1), c.reshape(-1), g.reshape(-1), ok.reshape(-1)
+    k0, k1 = k0.reshape(-1), k1.reshape(-1)
+
+    def cond(state):
+        return ~jnp.all(state[1])
+
+    def body(state):
+        g, ok, tried = state
+        idx = _pending_slots(~ok, capacity)  # [C], total where unused
+        idx_c = jnp.minimum(idx, total - 1)
+        row, col = idx_c // m, idx_c % m
+        ds, cs = d[idx_c], c[idx_c]
+        r0, r1 = k0[row], k1[row]
+        c0 = ctr0[col]
+        first = ctr1[col] + tried[idx_c]
+
+        def one_try(t, acc):
+            gs, oks = acc
+            v0, v1 = threefry2x32(r0, r1, c0, first + t.astype(jnp.uint32))
+            gt, okt = _mt_try(ds, cs, v0, v1)
+            return jnp.where(oks, gs, gt), oks | okt
+
+        init = (jnp.zeros(idx.shape, jnp.float32), jnp.zeros(idx.shape, bool))
+        gs, oks = jax.lax.fori_loop(0, tries_per_round, one_try, init)
+        g = g.at[idx].set(gs, mode="drop")
+        ok = ok.at[idx].set(oks, mode="drop")
+        tried = tried.at[idx].add(jnp.uint32(tries_per_round), mode="drop")
+        return g, ok, tried
+
+    tried = jnp.ones((total,), jnp.uint32)
+    g, _, _ = jax.lax.while_loop(cond, body, (g, ok, tried))
+    return g.reshape(rows, m)
+
+
+def _boosted_log(g, a, boost_bits):
+    """log Gamma(a) from g ~ Gamma(a + 1) by the boost G(a) = G(a + 1) U^(1/a).
+
+    In log space, so that it cannot underflow; ``boost_bits`` are the words for U.
+    """
+    a = jnp.maximum(a, _MIN_SHAPE)
+    return jnp.log(g) + jnp.log(_open_unit(boost_bits)) / a
+
+
+def gamma_rows(keys: jax.Array, a: jax.Array) -> jax.Array:
+    """Exact Gamma(a, 1) draws, one key per row.
+
+    Args:
+      keys: [B] typed PRNG keys (consumed).
+      a: [B, M] shapes, > 0.
+    Returns:
+      [B, M] float32 draws (draws of shapes below 1 may underflow to 0).
+    """
+    k0, k1 = key_words(keys)
+    a = jnp.asarray(a, jnp.float32)
+    m = a.shape[1]
+    ctr0 = jnp.arange(m, dtype=jnp.uint32)
+    ctr1 = jnp.full((m,), _STREAM_GAMMA_A << _STREAM_SHIFT, jnp.uint32)
+    small = a < 1.0
+    g = _gamma_ge1(k0, k1, jnp.where(small, a + 1.0, a), ctr0, ctr1)
+
+    def boost(g):
+        bits = _counter_words(k0, k1, 2 * m, _STREAM_BOOST)[:, 0::2]
+        return jnp.where(small, jnp.exp(_boosted_log(g, a, bits)), g)
+
+    return jax.lax.cond(jnp.any(small), boost, lambda g: g, g)
 
 
 def beta_rows(keys: jax.Array, a: jax.Array, b: jax.Array) -> jax.Array:
@@ -20,34 +284,274 @@ def beta_rows(keys: jax.Array, a: jax.Array, b: jax.Array) -> jax.Array:
 
     Args:
       keys: [B] typed PRNG keys (consumed).
-      a, b: [B, N] shape parameters, > 0 (float32).
+      a, b: [B, N] shape parameters, > 0 (float32). Shapes below 1 are exact too.
     Returns:
       [B, N] float32 draws in [0, 1].
     """
-    return jax.vmap(lambda k, a_, b_: jax.random.beta(k, a_, b_))(keys, a, b)
+    k0, k1 = key_words(keys)
+    a = jnp.asarray(a, jnp.float32)
+    b = jnp.asarray(b, jnp.float32)
+    a, b = jnp.broadcast_arrays(a, b)
+    n = a.shape[1]
+    ab = jnp.concatenate([a, b], axis=1)  # [B, 2N]
+    index = jnp.arange(n, dtype=jnp.uint32)
+    ctr0 = jnp.concatenate([index, index])
+    ctr1 = jnp.concatenate(
+        [
+            jnp.full((n,), _STREAM_GAMMA_A << _STREAM_SHIFT, jnp.uint32),
+            jnp.full((n,), _STREAM_GAMMA_B << _STREAM_SHIFT, jnp.uint32),
+        ]
+    )
+    small = ab < 1.0
+    g = _gamma_ge1(k0, k1, jnp.where(small, ab + 1.0, ab), ctr0, ctr1)
+    ga, gb = g[:, :n], g[:, n:]
+    x = ga / (ga + gb)
+
+    def boost(x):
+        # Ga / (Ga + Gb) = sigmoid(log Ga - log Gb), finite for any shapes. Where
+        # both shapes are >= 1 the draw keeps the bits of the plain ratio.
+        bits = _counter_words(k0, k1, 2 * n, _STREAM_BOOST)
+        bits = jnp.concatenate([bits[:, 0::2], bits[:, 1::2]], axis=1)
+        lg = jnp.where(small, _boosted_log(g, ab, bits), jnp.log(g))
+        ratio = jax.nn.sigmoid(lg[:, :n] - lg[:, n:])
+        return jnp.where(small[:, :n] | small[:, n:], ratio, x)
+
+    return jax.lax.cond(jnp.any(small), boost, lambda x: x, x)
+
+
+# --------------------------------------------------------------------------------------
+# Incomplete beta and its inverse
+# --------------------------------------------------------------------------------------
+
+_HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
+
+
+def _stirling_rest(z: jax.Array) -> jax.Array:
+    """lgamma(z) - [(z - 1/2) log z - z + log(2 pi)/2], accurate for all z > 0."""
+    big = z >= 10.0
+    zb = jnp.where(big, z, 10.0)
+    r2 = 1.0 / (zb * zb)
+    series = (1.0 / zb) * (
+        1.0 / 12.0 - r2 * (1.0 / 360.0 - r2 * (1.0 / 1260.0 - r2 / 1680.0))
+    )
+    zs = jnp.where(big, 1.0, z)
+    direct = jax.lax.lgamma(zs) - ((zs - 0.5) * jnp.log(zs) - zs + _HALF_LOG_2PI)
+    return jnp.where(big, series, direct)
+
+
+def _log1pmx(e: jax.Array) -> jax.Array:
+    """log(1 + e) - e, accurate also for small |e| (e > -1)."""
+    small = jnp.abs(e) < 0.5
+    es = jnp.where(small, e, 0.0)
+    u = es / (2.0 + es)
+    u2 = u * u
+    series = u2 * (1.0 / 11.0 + u2 / 13.0)
+    for k in (9.0, 7.0, 5.0, 3.0):
+        series = u2 * (1.0 / k + series)
+    near = -es * es / (2.0 + es) + 2.0 * u * series
+    el = jnp.where(small, 0.0, e)
+    return jnp.where(small, near, jnp.log1p(el) - el)
+
+
+def _log_prefactor(a, b, x):
+    """log[x^a (1 - x)^b / B(a, b)], accurate for shapes in the thousands.
+
+    Split as [f(x) - f(x0)] + [f(x0) - log B(a, b)] with f(x) = a log x +
+    b log(1 - x) and x0 = a / (a + b) its maximiser: the first part is written with
+    log1p(e) - e so that its O(a + b) terms cancel analytically, the second with
+    Stirling's series. (``lgamma`` in float32 loses ~1e-3 at shapes ~ 3000.)
+    """
+    c = a + b
+    x0 = a / c
+    y0 = 1.0 - x0
+    dx = x - x0
+    peak_gap = a * _log1pmx(dx / x0) + b * _log1pmx(-dx / y0) + dx * (a / x0 - b / y0)
+    at_peak = (
+        0.5 * (jnp.log(a) + jnp.log(b) - jnp.log(c))
+        - _HALF_LOG_2PI
+        - _stirling_rest(a)
+        - _stirling_rest(b)
+        + _stirling_rest(c)
+    )
+    return peak_gap + at_peak
+
+
+_TINY = 1e-30
+_CF_EPS = 3e-8
+_CF_MAX_ITER = 300
+_CF_UNROLL = 4
+
+
+def _betacf(a, b, x):
+    """Continued fraction of I_x(a, b) (modified Lentz), converged elementwise."""
+    qab = a + b
+    qap = a + 1.0
+    qam = a - 1.0
+
+    def fix(v):
+        return jnp.where(jnp.abs(v) < _TINY, _TINY, v)
+
+    c = jnp.ones_like(x)
+    d = 1.0 / fix(1.0 - qab * x / qap)
+    h = d
+    done = jnp.zeros(x.shape, bool)
+
+    def step(m, c, d, h, done):
+        # Each half step applies d <- 1 / (1 + n d / q) and c <- 1 + n / (q c) for a
+        # partial numerator n / q, written with two divisions instead of three.
+        m2 = 2.0 * m
+        n = m * (b - m) * x
+        q = (qam + m2) * (a + m2)
+        d = q / fix(q + n * d)
+        qc = q * c
+        c = fix((qc + n) / qc)
+        h1 = h * d * c
+        n = -(a + m) * (qab + m) * x
+        q = (a + m2) * (qap + m2)
+        d = q / fix(q + n * d)
+        qc = q * c
+        c = fix((qc + n) / qc)
+        delta = d * c
+        h2 = h1 * delta
+        h = jnp.where(done, h, h2)
+        done = done | (jnp.abs(delta - 1.0) < _CF_EPS)
+        return c, d, h, done
+
+    def cond(state):
+        m, _, _, _, done = state
+        return (m < _CF_MAX_ITER) & ~jnp.all(done)
+
+    def body(state):
+        m, c, d, h, done = state
+        for i in range(_CF_UNROLL):
+            c, d, h, done = step(m + i, c, d, h, done)
+        return m + _CF_UNROLL, c, d, h, done
+
+    state = (jnp.float32(1.0), c, d, h, done)
+    _, _, _, h, _ = jax.lax.while_loop(cond, body, state)
+    return h
+
+
+def _betainc_and_logpdf(a, b, x):
+    """(I_x(a, b), log density at x) for a, b > 0 and 0 < x < 1, float32."""
+    lpf = _log_prefactor(a, b, x)
+    flip = x > (a + 1.0) / (a + b + 2.0)
+    aa = jnp.where(flip, b, a)
+    bb = jnp.where(flip, a, b)
+    xx = jnp.where(flip, 1.0 - x, x)
+    tail = jnp.exp(lpf) * _betacf(aa, bb, xx) / aa
+    value = jnp.where(flip, 1.0 - tail, tail)
+    logpdf = lpf - jnp.log(x) - jnp.log1p(-x)
+    return jnp.clip(value, 0.0, 1.0), logpdf
+
+
+def betainc(a: jax.Array, b: jax.Array, x: jax.Array) -> jax.Array:
+    """Regularised incomplete beta function I_x(a, b), elementwise, float32.
+
+    Unlike ``jax.scipy.special.betainc`` in float32, stays accurate (about 1e-6
+    absolute) for shapes in the thousands.
+    """
+    a, b, x = jnp.broadcast_arrays(
+        jnp.asarray(a, jnp.float32),
+        jnp.asarray(b, jnp.float32),
+        jnp.asarray(x, jnp.float32),
+    )
+    a = jnp.maximum(a, _MIN_SHAPE)
+    b = jnp.maximum(b, _MIN_SHAPE)
+    inside = (x > 0.0) & (x < 1.0)
+    value, _ = _betainc_and_logpdf(a, b, jnp.where(inside, x, 0.5))
+    return jnp.where(inside, value, jnp.where(x >= 1.0, 1.0, 0.0))
+
+
+_PPF_MAX_ITER = 40
+
+
+def _ppf_initial_guess(q, a, b):
+    """Starting point of Numerical Recipes' ``invbetai`` (3rd ed., §6.14)."""
+    # Both shapes >= 1: normal approximation with a skewness correction.
+    pp = jnp.where(q < 0.5, q, 1.0 - q)
+    t = jnp.sqrt(-2.0 * jnp.log(pp))
+    z = (2.30753 + t * 0.27061) / (1.0 + t * (0.99229 + t * 0.04481)) - t
+    z = jnp.where(q < 0.5, -z, z)
+    al = (z * z - 3.0) / 6.0
+    a1 = jnp.maximum(a, 1.0)
+    b1 = jnp.maximum(b, 1.0)
+    inv_a = 1.0 / jnp.maximum(2.0 * a1 - 1.0, 1.0)
+    inv_b = 1.0 / jnp.maximum(2.0 * b1 - 1.0, 1.0)
+    h = 2.0 / (inv_a + inv_b)
+    w = z * jnp.sqrt(jnp.maximum(al + h, 0.0)) / h - (inv_b - inv_a) * (
+        al + 5.0 / 6.0 - 2.0 / (3.0 * h)
+    )
+    x_big = a / (a + b * jnp.exp(jnp.clip(2.0 * w, -80.0, 80.0)))
+    # A shape below 1: power-law tails.
+    lna = jnp.log(a / (a + b))
+    lnb = jnp.log(b / (a + b))
+    ta = jnp.exp(a * lna) / a
+    tb = jnp.exp(b * lnb) / b
+    tw = ta + tb
+    x_small = jnp.where(
+        q < ta / tw,
+        jnp.exp(jnp.log(a * tw * q) / a),
+        1.0 - jnp.exp(jnp.log(b * tw * (1.0 - q)) / b),
+    )
+    x = jnp.where((a >= 1.0) & (b >= 1.0), x_big, x_small)
+    return jnp.clip(x, 1e-30, 1.0 - 6e-8)
 
 
 def beta_ppf(q: jax.Array | float, a: jax.Array, b: jax.Array) -> jax.Array:
     """Inverse CDF of Beta(a, b) at probability q, elementwise (broadcasting).
 
-    Bisection on the regularised incomplete beta function; matches
-    ``scipy.stats.beta.ppf`` to well under 1e-4.
+    Newton-Halley steps on :func:`betainc`, kept inside a bisection bracket;
+    matches ``scipy.stats.beta.ppf`` within 1e-4 (float32; about 1e-6 typical).
     """
-    a = jnp.asarray(a, jnp.float32)
-    b = jnp.asarray(b, jnp.float32)
-    q = jnp.asarray(q, jnp.float32)
-    shape = jnp.broadcast_shapes(q.shape, a.shape, b.shape)
-    lo = jnp.zeros(shape, jnp.float32)
-    hi = jnp.ones(shape, jnp.float32)
+    q, a, b = jnp.broadcast_arrays(
+        jnp.asarray(q, jnp.float32),
+        jnp.asarray(a, jnp.float32),
+        jnp.asarray(b, jnp.float32),
+    )
+    a = jnp.maximum(a, _MIN_SHAPE)
+    b = jnp.maximum(b, _MIN_SHAPE)
+    qc = jnp.clip(q, 0.0, 1.0)
+    x0 = _ppf_initial_guess(jnp.clip(qc, 1e-30, 1.0 - 6e-8), a, b)
+    lo = jnp.zeros_like(x0)
+    hi = jnp.ones_like(x0)
+    done = (qc <= 0.0) | (qc >= 1.0)
 
-    def body(_, lohi):
-        lo, hi = lohi
-        mid = 0.5 * (lo + hi)
-        below = jax.scipy.special.betainc(a, b, mid) < q
-        return jnp.where(below, mid, lo), jnp.where(below, hi, mid)
+    def cond(state):
+        it, _, _, _, done = state
+        return (it < _PPF_MAX_ITER) & ~jnp.all(done)
 
-    lo, hi = jax.lax.fori_loop(0, 30, body, (lo, hi))
-    return 0.5 * (lo + hi)
+    def body(state):
+        it, x, lo, hi, done = state
+        value, logpdf = _betainc_and_logpdf(a, b, x)
+        err = value - qc
+        lo = jnp.where(err < 0.0, x, lo)
+        hi = jnp.where(err < 0.0, hi, x)
+        newton = err * jnp.exp(-logpdf)
+        curv = (a - 1.0) / x - (b - 1.0) / (1.0 - x)
+        halley = jnp.clip(newton * curv, -1.0, 1.0)
+        x_new = x - newton / (1.0 - 0.5 * jnp.where(jnp.isnan(halley), 0.0, halley))
+        stalled = x_new == x
+        inside = ((x_new > lo) & (x_new < hi)) | stalled
+        x_new = jnp.where(inside, x_new, 0.5 * (lo + hi))
+        converged = stalled | (err == 0.0)
+        # Halley converges cubically: once a step is this small, its result is
+        # exact to float32 precision.
+        converged |= inside & (
+            jnp.abs(x_new - x) <= 1e-3 * jnp.minimum(x_new, 1.0 - x_new)
+        )
+        converged |= hi - lo <= 1e-7 * jnp.maximum(x_new, 1e-3)
+        x = jnp.where(done, x, x_new)
+        return it + 1, x, lo, hi, done | converged
+
+    _, x, _, _, _ = jax.lax.while_loop(cond, body, (jnp.int32(0), x0, lo, hi, done))
+    x = jnp.where(qc <= 0.0, 0.0, jnp.where(qc >= 1.0, 1.0, x))
+    return jnp.where(jnp.isnan(q), jnp.nan, x)
+
+
+# --------------------------------------------------------------------------------------
+# Dirichlet early-stopping bound
+# --------------------------------------------------------------------------------------
 
 
 def dirichlet_lower_bound(
@@ -61,7 +565,9 @@ def dirichlet_lower_bound(
     """The δ-quantile of p' = Σ_s v_s λ'_s with λ' ~ Dir(c_s + 1 observed, 1 unseen).
 
     SPEC §5. Unobserved poses get no bin of their own; one extra "unseen" bin with
-    parameter 1 carries value 0.
+    parameter 1 carries value 0. The Dirichlet draws are exact (normalised Gamma
+    draws); the quantile interpolates linearly between order statistics (NumPy's
+    default).
 
     Args:
       keys: [B] typed PRNG keys (consumed).
@@ -73,14 +579,55 @@ def dirichlet_lower_bound(
     Returns:
       [B] float32 lower bounds p̂_ℓ.
     """
-    delta = jnp.broadcast_to(jnp.asarray(delta, jnp.float32), keys.shape)
+    k0, k1 = key_words(keys)
+    counts = jnp.asarray(counts, jnp.float32)
+    observed = jnp.asarray(observed, bool)
+    values = jnp.asarray(values, jnp.float32)
+    rows, p = counts.shape
+    bins = p + 1
+    delta = jnp.broadcast_to(jnp.asarray(delta, jnp.float32), (rows,))
+    alpha = jnp.concatenate(
+        [jnp.where(observed, jnp.maximum(counts, 0.0) + 1.0, 1.0), jnp.ones((rows, 1))],
+        axis=1,
+    )  # [B, P+1], all >= 1
+    m = num_samples * bins
+    shapes = jnp.broadcast_to(alpha[:, None, :], (rows, num_samples, bins))
+    ctr0 = jnp.arange(m, dtype=jnp.uint32)
+    ctr1 = jnp.full((m,), _STREAM_GAMMA_A << _STREAM_SHIFT, jnp.uint32)
+    g = _gamma_ge1(k0, k1, shapes.reshape(rows, m), ctr0, ctr1)
+    g = g.reshape(rows, num_samples, bins)
+    keep = jnp.concatenate([observed, jnp.ones((rows, 1), bool)], axis=1)
+    g = jnp.where(keep[:, None, :], g, 0.0)
+    v = jnp.concatenate(
+        [jnp.where(observed, values, 0.0), jnp.zeros((rows, 1))], axis=1
+    )
+    pv = jnp.sum(g * v[:, None, :], axis=2) / jnp.sum(g, axis=2)  # [B, M]
+    pv = jnp.sort(pv, axis=1)
+    pos = delta * (num_samples - 1)
+    lo = jnp.clip(jnp.floor(pos).astype(jnp.int32), 0, num_samples - 1)
+    hi = jnp.minimum(lo + 1, num_samples - 1)
+    frac = pos - lo.astype(jnp.float32)
+    v_lo = jnp.take_along_axis(pv, lo[:, None], axis=1)[:, 0]
+    v_hi = jnp.take_along_axis(pv, hi[:, None], axis=1)[:, 0]
+    return v_lo + frac * (v_hi - v_lo)
 
-    def one(key, c, obs, v, d):
-        alpha = jnp.concatenate([jnp.where(obs, c + 1.0, 1.0), jnp.ones(1)])
-        g = jax.random.gamma(key, alpha, shape=(num_samples, alpha.shape[0]))
-        g = g * jnp.concatenate([obs, jnp.ones(1, bool)])
-        lam = g / g.sum(axis=1, keepdims=True)
-        p = lam[:, :-1] @ jnp.where(obs, v, 0.0)
-        return jnp.quantile(p, d)
 
-    return jax.vmap(one)(keys, counts.astype(jnp.float32), observed, values, delta)
+# --------------------------------------------------------------------------------------
+# Small helpers
+# --------------------------------------------------------------------------------------
+
+
+def argmax_first(x: jax.Array, axis: int = -1) -> jax.Array:
+    """Index of the maximum along ``axis``, the smallest one on ties (int32).
+
+    Computed as the max, then the smallest index holding it: about twice as fast as
+    ``jnp.argmax`` on CPU. ``x`` must hold no NaN.
+    """
+    x = jnp.asarray(x)
+    axis = axis % x.ndim
+    n = x.shape[axis]
+    top = jnp.max(x, axis=axis, keepdims=True)
+    shape = [1] * x.ndim
+    shape[axis] = n
+    index = jnp.arange(n, dtype=jnp.int32).reshape(shape)
+    return jnp.min(jnp.where(x == top, index, n), axis=axis)
