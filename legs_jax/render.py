@@ -199,18 +199,23 @@ def choose_scale(
     centers: np.ndarray,
     candidates: Sequence[float] = (1.0, 1e-3, 1e-2, 1e3),
 ) -> float:
-    """The mesh scale under which most grasp centres fall inside the posed mesh's
-    bounding box (meshes in millimetres, grasps in metres); 1 when no centre fits."""
+    """The mesh scale under which the grasp centres fit the posed mesh best (meshes
+    in millimetres, grasps in metres): most centres inside the mesh's bounding box,
+    and the centres' spread of the same order as the mesh; 1 without centres."""
     centers = np.asarray(centers, np.float64).reshape(-1, 3)
     if len(centers) == 0:
         return 1.0
-    best, best_frac = 1.0, 0.0
+    spread = float((centers.max(axis=0) - centers.min(axis=0)).max())
+    best, best_score = 1.0, -np.inf
     for c in candidates:
         v = pose_vertices(vertices, transform, c)
         lo, hi = v.min(axis=0), v.max(axis=0)
-        pad = 0.1 * (hi - lo).max()
+        extent = float((hi - lo).max())
+        pad = 0.1 * extent
         inside = np.all((centers >= lo - pad) & (centers <= hi + pad), axis=1)
-        frac = float(inside.mean())
-        if frac > best_frac + 1e-9:
-            best, best_frac = c, frac
+        score = float(inside.mean())
+        if spread > 0 and extent > 0:
+            score -= 0.1 * abs(np.log10(spread / extent))
+        if score > best_score + 1e-9:
+            best, best_score = c, score
     return best
