@@ -1124,7 +1124,7 @@ def _merge(plan: ExperimentPlan, d: Path) -> dict[str, int]:
             "object_id": np.array([o.object_id for o in plan.objects], np.int64),
             "num_poses": np.array([o.num_poses for o in plan.objects], np.int64),
             "num_grasps": np.array([o.num_grasps for o in plan.objects], np.int64),
-            "problem_file": [_display_path(o.path, d.parent) for o in plan.objects],
+            "problem_file": [str(o.path) for o in plan.objects],
             "sha256": [o.sha256 for o in plan.objects],
         }
     )
@@ -1132,14 +1132,6 @@ def _merge(plan: ExperimentPlan, d: Path) -> dict[str, int]:
     if plan.active_set_methods:
         res.atomic_write_parquet(_grasps_table(plan), d / "grasps.parquet")
     return {k: len(v) for k, v in tables.items()}
-
-
-def _display_path(path: str, out: Path) -> str:
-    """``path`` relative to the output folder when it lies inside it."""
-    try:
-        return Path(path).resolve().relative_to(out.resolve()).as_posix()
-    except ValueError:
-        return str(path)
 
 
 def _grasps_table(plan: ExperimentPlan):

@@ -50,12 +50,30 @@ def _sweep(args, env, timeout=300) -> subprocess.CompletedProcess:
 
 
 def _tables(folder: Path) -> dict[str, bytes]:
-    """Every merged result file's bytes (chunk folders and manifests excluded)."""
-    return {
-        p.relative_to(folder).as_posix(): p.read_bytes()
-        for p in sorted(folder.rglob("*.parquet"))
-        if "chunks" not in p.parts
-    }
+    """Every merged result file's bytes (chunk folders and manifests excluded;
+    objects.parquet without its problem-file paths, which name the folder)."""
+    out = {}
+    for p in sorted(folder.rglob("*.parquet")):
+        if "chunks" in p.parts:
+            continue
+        key = p.relative_to(folder).as_posix()
+        if p.name == "objects.parquet":
+            df = pd.read_parquet(p).drop(columns="problem_file")
+            out[key] = df.to_json().encode()
+        else:
+            out[key] = p.read_bytes()
+    return out
+
+
+def _finished(chunks: Path) -> list[str]:
+    """Names of the finished chunk folders (not the temporary ones)."""
+    if not chunks.is_dir():
+        return []
+    return sorted(
+        d.name
+        for d in chunks.iterdir()
+        if not d.name.startswith(".") and (d / "chunk.json").is_file()
+    )
 
 
 def test_smoke_runs_every_experiment(tmp_path):
@@ -131,7 +149,7 @@ def test_sigkill_then_resume_equals_uninterrupted(tmp_path):
     try:
         deadline = time.time() + 240
         while time.time() < deadline and proc.poll() is None:
-            if chunks.is_dir() and any(chunks.glob("*/chunk.json")):
+            if _finished(chunks):
                 break
             time.sleep(0.05)
         assert proc.poll() is None, "the sweep finished before it could be killed"
@@ -140,7 +158,7 @@ def test_sigkill_then_resume_equals_uninterrupted(tmp_path):
     finally:
         if proc.poll() is None:
             proc.kill()
-    done = sorted(d.name for d in chunks.glob("*") if (d / "chunk.json").is_file())
+    done = _finished(chunks)
     assert 1 <= len(done) < 3
     assert not (out / "main" / "runs.parquet").exists()
     res = _sweep([*args, "--out", str(out)], _env())
@@ -161,3 +179,87 @@ def test_four_cpu_devices_equal_one(tmp_path):
     man = json.loads((tmp_path / "four/main/manifest.json").read_text())
     assert man["sessions"][-1]["devices"]["count"] == 4
     assert _tables(tmp_path / "four") == _tables(tmp_path / "one")
+
+
+def test_ctrl_c_stops_cleanly_and_says_what_was_kept(tmp_path):
+    args = ["--smoke", "--experiment", "main", "--out", str(tmp_path)]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "legs_jax.sweep", *args],
+        cwd=ROOT,
+        env=_env(),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    chunks = tmp_path / "main" / "chunks"
+    try:
+        deadline = time.time() + 240
+        while time.time() < deadline and proc.poll() is None and not _finished(chunks):
+            time.sleep(0.05)
+        assert proc.poll() is None, "the sweep finished before it could be stopped"
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err[-2000:]
+    kept = _finished(chunks)
+    assert f"interrupted: main kept {len(kept)} of 8 finished chunk(s)" in err
+    assert "Traceback" not in err and "run the same command again" in err.lower()
+    assert not [d for d in chunks.iterdir() if d.name.startswith(".tmp")]
+    man = json.loads((tmp_path / "main/manifest.json").read_text())
+    assert man["status"] == "interrupted" and man["chunks_done"] == len(kept)
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_distributed_single_process_path(tmp_path):
+    args = ["--smoke", "--experiment", "main", "--methods", "dexnet", "tql"]
+    ref = _sweep([*args, "--out", str(tmp_path / "ref")], _env())
+    assert ref.returncode == 0, ref.stderr[-3000:]
+    dist = ["--coordinator", f"127.0.0.1:{_free_port()}", "--num-processes", "1"]
+    p = _sweep(
+        [*args, *dist, "--process-id", "0", "--out", str(tmp_path / "d")], _env()
+    )
+    assert p.returncode == 0, p.stderr[-3000:]
+    assert _tables(tmp_path / "d") == _tables(tmp_path / "ref")
+
+
+@pytest.mark.slow
+def test_two_processes_split_the_chunks_and_merge(tmp_path):
+    args = ["--smoke", "--experiment", "main", "--methods", "dexnet", "legs", "tql"]
+    ref = _sweep([*args, "--out", str(tmp_path / "ref")], _env())
+    assert ref.returncode == 0, ref.stderr[-3000:]
+    dist = ["--coordinator", f"127.0.0.1:{_free_port()}", "--num-processes", "2"]
+    procs = [
+        subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "legs_jax.sweep",
+                *args,
+                *dist,
+                "--process-id",
+                str(i),
+                "--out",
+                str(tmp_path / "d"),
+            ],  # fmt: skip
+            cwd=ROOT,
+            env=_env(),
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for i in range(2)
+    ]
+    errs = [p.communicate(timeout=300)[1] for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], errs
+    man = json.loads((tmp_path / "d/main/manifest.json").read_text())
+    assert {c["process_id"] for c in man["chunks"].values()} == {0, 1}
+    assert _tables(tmp_path / "d") == _tables(tmp_path / "ref")
