@@ -35,6 +35,7 @@ __all__ = [
     "arm_label",
     "arms_of",
     "bound_summary",
+    "curve_summary",
     "learning_curves",
     "object_gaps",
     "order_sets",
@@ -454,6 +455,22 @@ def learning_curves(curves: pd.DataFrame, obj: str) -> pd.DataFrame:
     if "n_runs" in c.columns:
         cols.append("n_runs")
     return pd.concat(out, ignore_index=True)[cols]
+
+
+def curve_summary(lc: pd.DataFrame) -> pd.DataFrame:
+    """Per arm of ``learning_curves`` output: ``final`` (gap at the last step) and
+    ``area`` (mean gap over the run: trapezoid area under the curve over its step
+    range; lower means faster convergence)."""
+    rows = []
+    for (method, variant), g in lc.groupby(["method", "variant"], sort=False):
+        x = g["step"].to_numpy(np.float64)
+        y = g["gap_mean"].to_numpy(np.float64)
+        span = x[-1] - x[0]
+        area = (
+            float(np.sum(0.5 * (y[1:] + y[:-1]) * np.diff(x)) / span) if span else y[0]
+        )
+        rows.append((method, variant, float(y[-1]), area))
+    return pd.DataFrame(rows, columns=["method", "variant", "final", "area"])
 
 
 def active_set_trace(

@@ -477,6 +477,7 @@ def case_study_figure(
         ax2.grid(alpha=0.25)
         ax2.set_title(f"{name}: learning curves", fontsize=9)
         obj_info["final_gap"] = finals
+        obj_info["curves"] = an.curve_summary(lc)
         info["objects"][name] = obj_info
     order = an.sort_arms(handles)
     fig.legend(
@@ -534,7 +535,7 @@ def early_stopping_figure(res: Results, out: Path) -> tuple[Path, dict[str, Any]
     sens = an.stopping_sensitivity(checks, rho, horizon)
     plt = _plt()
     fig, axes = plt.subplots(1, 3, figsize=(12.5, 4.3))
-    fig.subplots_adjust(left=0.06, right=0.99, top=0.8, bottom=0.27, wspace=0.3)
+    fig.subplots_adjust(left=0.06, right=0.99, top=0.78, bottom=0.27, wspace=0.3)
     styles = {
         "all": dict(color="#d62728", marker="o", ls="-"),
         "attempted": dict(color="#1f77b4", marker="s", ls="--"),
@@ -543,22 +544,38 @@ def early_stopping_figure(res: Results, out: Path) -> tuple[Path, dict[str, Any]
         "all": r"$\hat p^*$ over all candidates (paper's bound)",
         "attempted": r"$\hat p^*$ over attempted grasps (variant)",
     }
+    few = 10  # accuracy over fewer stopped runs than this is drawn hollow
     for b, g in sens.groupby("bound", sort=False):
         st = styles.get(b, {})
         kw = dict(ms=4, lw=1.5, label=labels.get(b, b), **st)
         axes[0].plot(g["rho_min"], 100 * g["accuracy"], **kw)
+        thin = g[(g["n_stopped"] > 0) & (g["n_stopped"] < few)]
+        axes[0].plot(
+            thin["rho_min"],
+            100 * thin["accuracy"],
+            ls="none",
+            marker=st.get("marker", "o"),
+            ms=6,
+            mfc="white",
+            mec=st.get("color"),
+        )
         axes[1].plot(g["rho_min"], g["mean_stop_step"], **kw)
         axes[2].plot(g["rho_min"], 100 * g["frac_stopped"], **kw)
-    axes[0].axhline(95, color="#555555", lw=1, ls=":")
-    axes[0].text(0.02, 95.3, r"$1-\delta_{stop}$ = 95 %", fontsize=7.5, color="#555555")
+    axes[0].axhline(
+        95, color="#777777", lw=1.2, ls="-.", label=r"$1-\delta_{stop}$ = 95 %"
+    )
+    if (sens["n_stopped"].between(1, few - 1)).any():
+        axes[0].plot(
+            [], [], ls="none", marker="o", mfc="white", mec="#555555",
+            label=f"fewer than {few} runs stopped",
+        )  # fmt: skip
     axes[0].set_ylabel("accuracy of stopped runs (%)")
     axes[0].set_title(r"true performance $\geq \rho_{min}$ when stopped")
     acc = 100 * sens["accuracy"].to_numpy(float)
     lo = float(np.nanmin(acc)) if np.isfinite(acc).any() else 90.0
     axes[0].set_ylim(min(90.0, math.floor((lo - 1.0) / 5) * 5), 101)
-    axes[1].axhline(horizon, color="#555555", lw=1, ls=":")
-    axes[1].text(
-        0.02, horizon * 0.97, f"H = {horizon}", va="top", fontsize=7.5, color="#555555"
+    axes[1].axhline(
+        horizon, color="#777777", lw=1.2, ls=":", label=f"horizon H = {horizon}"
     )
     axes[1].set_ylabel("mean steps before stopping")
     axes[1].set_title("exploration before stopping")
@@ -571,11 +588,12 @@ def early_stopping_figure(res: Results, out: Path) -> tuple[Path, dict[str, Any]
         ax.set_xlim(0, 1)
         ax.grid(alpha=0.25)
     h0, l0 = axes[0].get_legend_handles_labels()
+    h1, l1 = axes[1].get_legend_handles_labels()
     fig.legend(
-        h0,
-        l0,
+        h0 + h1[-1:],
+        l0 + l1[-1:],
         loc="upper center",
-        ncol=2,
+        ncol=3,
         frameon=False,
         bbox_to_anchor=(0.5, 0.99),
     )
@@ -674,9 +692,11 @@ def active_set_figure(
                 vis = vis.reshape(-1, 2).all(axis=1)
                 if bold:
                     rob = pb.robustness[0, p, sel]
-                    col = cmap(norm(rob))
-                    col[:, 3] = np.where(vis, 1.0, 0.35)
-                    ax.add_collection(LineCollection(uv, colors=col, lw=2.2))
+                    order = np.argsort(rob, kind="stable")  # best drawn last
+                    col = cmap(norm(rob[order]))
+                    col[:, 3] = np.where(vis[order], 1.0, 0.35)
+                    lw = 2.2 if len(sel) <= 20 else 1.5
+                    ax.add_collection(LineCollection(uv[order], colors=col, lw=lw))
                 else:
                     ax.add_collection(
                         LineCollection(uv, colors=(0.4, 0.4, 0.4, 0.25), lw=0.6)
@@ -690,11 +710,13 @@ def active_set_figure(
         drawn = _draw_object(ax, data, set_, obj, pose=pose, grasps=overlay(step))
         info.setdefault("notes", []).extend(drawn["notes"])
         s = summary[summary["step"] == step].iloc[0]
-        ax.set_title(
-            f"active set at step {step}\n{int(s['n_members'])} grasps, "
-            f"best p = {s['best']:.2f}",
-            fontsize=9,
-        )
+        title = f"active set at step {step}\n{int(s['n_members'])} grasps"
+        if j == 1 and "grasp" in members.columns:
+            g0 = set(members.loc[members["step"] == first, "grasp"])
+            g1 = set(members.loc[members["step"] == last, "grasp"])
+            info["new_members"] = len(g1 - g0)
+            title += f" ({len(g1 - g0)} new)"
+        ax.set_title(title + f", best p = {s['best']:.2f}", fontsize=9)
     ax = fig.add_subplot(gs[0, 2])
     jitter = np.random.default_rng(0).uniform(-0.25, 0.25, len(members))
     dx = (steps[1] - steps[0]) if len(steps) > 1 else 100

@@ -275,3 +275,21 @@ def test_learning_curves_order_and_arms(results):
     assert [m for m, _ in arms] == list(an.METHODS)
     for _, g in lc.groupby(["method", "variant"]):
         assert np.all(np.diff(g["step"].to_numpy()) > 0)
+
+
+def test_curve_summary_area_and_final():
+    steps = np.arange(0, 101, 10)
+    lc = pd.DataFrame(
+        {
+            "method": ["legs"] * 11 + ["dexnet"] * 11,
+            "variant": [""] * 22,
+            "step": np.concatenate([steps, steps]),
+            # LEGS falls linearly from 0.5 to 0.0; Dex-Net stays at 0.4.
+            "gap_mean": np.concatenate([0.5 - 0.005 * steps, np.full(11, 0.4)]),
+            "gap_se": 0.0,
+        }
+    )
+    s = an.curve_summary(lc).set_index("method")
+    assert s.loc["legs", "final"] == pytest.approx(0.0)
+    assert s.loc["legs", "area"] == pytest.approx(0.25)
+    assert s.loc["dexnet", "area"] == pytest.approx(0.4)
