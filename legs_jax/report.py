@@ -91,6 +91,16 @@ _TEX_ESCAPES = {
     "^": r"\textasciicircum{}",
 }
 _TEX_SYMBOLS = {
+    "Σ_s λ_s p[s, π_t(s)]": r"$\sum_s \lambda_s p[s, \pi_t(s)]$",
+    "p̂_ℓ": r"$\hat{p}_\ell$",
+    "p̂*": r"$\hat{p}^*$",
+    "ρ_min": r"$\rho_{\min}$",
+    "K_s": r"$K_s$",
+    "ℓ": r"$\ell$",
+    "Σ": r"$\Sigma$",
+    "π": r"$\pi$",
+    "−": r"$-$",
+    "≈": r"$\approx$",
     "±": r"$\pm$",
     "≤": r"$\le$",
     "≥": r"$\ge$",
@@ -105,19 +115,23 @@ _TEX_SYMBOLS = {
 }
 
 
+_TEX_TOKENS = sorted(_TEX_SYMBOLS, key=len, reverse=True)
+
+
 def tex_escape(text: str) -> str:
-    """Plain text as LaTeX (special characters escaped, a few symbols as math)."""
+    """Plain text as LaTeX (special characters escaped, symbols as math)."""
     out = []
     i = 0
     while i < len(text):
-        two = text[i : i + 2]
-        if two in _TEX_SYMBOLS:
-            out.append(_TEX_SYMBOLS[two])
-            i += 2
-            continue
-        ch = text[i]
-        out.append(_TEX_SYMBOLS.get(ch, _TEX_ESCAPES.get(ch, ch)))
-        i += 1
+        for tok in _TEX_TOKENS:
+            if text.startswith(tok, i):
+                out.append(_TEX_SYMBOLS[tok])
+                i += len(tok)
+                break
+        else:
+            ch = text[i]
+            out.append(_TEX_ESCAPES.get(ch, ch))
+            i += 1
     return "".join(out)
 
 
@@ -143,11 +157,19 @@ def to_markdown(t: Table) -> str:
 
 
 def to_latex(t: Table) -> str:
-    """A booktabs ``table`` environment (needs ``booktabs``)."""
+    """A booktabs ``table`` environment (needs ``booktabs``); tables of more than
+    six columns span both columns (``table*``) and are scaled to the text width
+    (needs ``graphicx``)."""
+    wide = len(t.header) > 6
+    env = "table*" if wide else "table"
     lines = [
-        r"\begin{table}[t]",
+        r"\begin{" + env + "}[t]",
         r"\centering",
         r"\small",
+    ]
+    if wide:
+        lines.append(r"\resizebox{\textwidth}{!}{%")
+    lines += [
         r"\begin{tabular}{" + t.align + "}",
         r"\toprule",
         " & ".join(tex_escape(h) for h in t.header) + r" \\",
@@ -157,7 +179,7 @@ def to_latex(t: Table) -> str:
         cells = [c.text(True) if isinstance(c, Num) else tex_escape(c) for c in row]
         lines.append(" & ".join(cells) + r" \\")
     lines.append(r"\bottomrule")
-    lines.append(r"\end{tabular}")
+    lines.append(r"\end{tabular}" + ("}" if wide else ""))
     caption = t.caption
     if t.notes:
         caption = (caption + ". " if caption else "") + " ".join(t.notes)
@@ -165,7 +187,7 @@ def to_latex(t: Table) -> str:
         lines.append(r"\caption{" + tex_escape(caption) + "}")
     if t.label:
         lines.append(r"\label{" + t.label + "}")
-    lines.append(r"\end{table}")
+    lines.append(r"\end{" + env + "}")
     return "\n".join(lines) + "\n"
 
 

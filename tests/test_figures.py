@@ -50,6 +50,8 @@ def test_everything_renders(world):
         for ext in ("md", "tex"):
             f = out / "tables" / f"{t}.{ext}"
             assert f.is_file() and f.stat().st_size > 100, f
+        # LaTeX output is plain ASCII: every symbol was translated.
+        (out / "tables" / f"{t}.tex").read_text().encode("ascii")
     import matplotlib.image as mpimg
 
     for name in FIGURES:
@@ -290,7 +292,8 @@ def test_choose_scale_finds_millimetres():
 
 
 def test_latex_escaping():
-    assert rp.tex_escape("K_s=100 & 5% ± δ") == r"K\_s=100 \& 5\% $\pm$ $\delta$"
+    assert rp.tex_escape("K_s=100 & 5% ± δ") == r"$K_s$=100 \& 5\% $\pm$ $\delta$"
+    assert rp.tex_escape("a_b p̂_ℓ") == r"a\_b $\hat{p}_\ell$"
     num = rp.Num(0.1234, 0.0456, 3, bold=True)
     assert num.text() == "**0.123 ± 0.046**"
     assert num.text(latex=True) == r"$\mathbf{0.123 \pm 0.046}$"
