@@ -665,7 +665,7 @@ def active_set_figure(
         width_ratios=[1, 1, 1.9],
         left=0.01,
         right=0.93,
-        top=0.83,
+        top=0.8,
         bottom=0.13,
         wspace=0.12,
     )
@@ -745,9 +745,15 @@ def active_set_figure(
     ax.set_ylim(-0.02, 1.02)
     ax.set_xlim(0, last + dx * 0.5)
     ax.grid(alpha=0.25)
-    ax.legend(loc="lower right", frameon=True, framealpha=0.9)
-    ax.set_title("robustness of the active-set members at every check", fontsize=9)
-    cax = fig.add_axes([0.945, 0.13, 0.012, 0.7])
+    ax.legend(
+        loc="lower center",
+        bbox_to_anchor=(0.5, 1.0),
+        ncol=3,
+        frameon=False,
+        title="ground-truth robustness of the active-set members at every check",
+        title_fontsize=9,
+    )
+    cax = fig.add_axes([0.945, 0.13, 0.012, 0.67])
     fig.colorbar(cm.ScalarMappable(norm=norm, cmap=cmap), cax=cax, label="p")
     k_text = "k"
     if res.has("case_study", "runs"):
