@@ -48,6 +48,7 @@ __all__ = [
     "main",
 ]
 
+EXPERIMENTS = ("main", "case_study", "early_stopping", "prior_strength", "confidence")
 CASE_OBJECTS = ("climbing_hold", "C3", "F6", "turbine_housing")
 ACTIVE_OBJECT = "climbing_hold"
 DEFAULT_RHO = tuple(round(0.05 * i, 2) for i in range(1, 20))
@@ -382,6 +383,12 @@ def case_study_figure(
     the histogram of ground-truth robustness, and every method's learning curve
     with a ±1 SE band."""
     exp = "case_study" if res.has("case_study", "curves") else "main"
+    if not res.has(exp, "curves"):
+        raise MissingResults(
+            f"{res.path('case_study', 'curves')} is missing, and so is "
+            f"{res.path('main', 'curves')} to fall back on (run `python -m "
+            "legs_jax.sweep --experiment case_study`)"
+        )
     curves = res.table(exp, "curves")
     present = [o for o in objects if (curves["object"] == o).any()]
     if not present:
@@ -518,7 +525,11 @@ def _early_stopping_checks(res: Results) -> tuple[pd.DataFrame, str, int]:
         if "set" in checks.columns and (checks["set"] == "dexnet_adv").any():
             checks = checks[checks["set"] == "dexnet_adv"]
     else:
-        raise MissingResults(f"{res.path('early_stopping', 'checks')} is missing")
+        raise MissingResults(
+            f"{res.path('early_stopping', 'checks')} is missing, and so is "
+            f"{res.path('main', 'checks')} to fall back on (run `python -m "
+            "legs_jax.sweep --experiment early_stopping`)"
+        )
     checks = an.select_arm(checks, "legs", "")
     if checks.empty:
         raise MissingResults(f"{res.path(exp, 'checks')} has no LEGS checks")
@@ -856,9 +867,16 @@ def generate(
             f"results directory {results} does not exist (run `python -m "
             "legs_jax.sweep --all` first, or pass --results)"
         )
+    res = Results(results)
+    if not any(res.has(e, "runs") for e in EXPERIMENTS):
+        raise MissingResults(
+            f"no results in {results}: none of "
+            + ", ".join(f"{e}/runs.parquet" for e in EXPERIMENTS)
+            + " exists (run `python -m legs_jax.sweep --all` first, or pass "
+            "--results)"
+        )
     out = Path(out) if out is not None else results
     tables_dir, figures_dir = out / "tables", out / "figures"
-    res = Results(results)
     objdata = ObjectData(data, res)
     written: list[Path] = []
     problems: list[str] = []

@@ -224,6 +224,13 @@ def test_missing_results_directory(tmp_path, capsys):
     assert rc == 2
     assert "nope" in err and "does not exist" in err
     assert "Traceback" not in err
+    # A folder without any experiment's results: an error, and nothing written.
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    rc = figures.main(["--results", str(empty), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "no results" in err and "main/runs.parquet" in err
+    assert list(empty.iterdir()) == []
 
 
 def test_missing_tables_are_named_and_the_rest_is_made(world, tmp_path, capsys):
