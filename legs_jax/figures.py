@@ -279,6 +279,11 @@ def _draw_object(
         return info
     transform = None
     scale = 1.0
+    if pb is not None and pose is not None and not 0 <= pose < pb.num_poses:
+        info["notes"].append(
+            f"problem file of {name} has {pb.num_poses} poses, results use pose {pose}"
+        )
+        pb = None
     if pb is not None:
         if pose is None:
             pose = _main_pose(pb)
@@ -310,7 +315,10 @@ def _draw_object(
             transform=ax.transAxes,
         )
     elif grasps is not None:
-        grasps(pb, pose, img, ax)
+        try:
+            grasps(pb, pose, img, ax)
+        except (IndexError, ValueError) as e:
+            info["notes"].append(f"grasps of {name} not drawn ({e})")
     return info
 
 
@@ -855,6 +863,7 @@ def generate(
     case_objects: Sequence[str] = CASE_OBJECTS,
     active_object: str = ACTIVE_OBJECT,
     progress: bool = True,
+    debug: bool = False,
 ) -> tuple[list[Path], list[str]]:
     """Write every table, figure and the report that the results allow.
 
@@ -933,6 +942,13 @@ def generate(
             fn()
         except (MissingResults, an.AnalysisError) as e:
             problems.append(f"{label}: skipped: {e}")
+        except Exception as e:  # noqa: BLE001 - one bad output must not stop the rest
+            if debug:
+                raise
+            problems.append(
+                f"{label}: failed: {type(e).__name__}: {e} (rerun with --debug for "
+                "the traceback)"
+            )
     bar.close()
     ctx["problems"] = problems
     report_path = out / "REPORT.md"
@@ -986,6 +1002,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="object whose LEGS active set is drawn (default: %(default)s)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress bar or listing")
+    p.add_argument(
+        "--debug",
+        action="store_true",
+        help="stop with a traceback when an output fails unexpectedly",
+    )
     return p
 
 
@@ -999,6 +1020,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             case_objects=a.case_objects,
             active_object=a.active_object,
             progress=not a.quiet,
+            debug=a.debug,
         )
     except MissingResults as e:
         print(f"error: {e}", file=sys.stderr)

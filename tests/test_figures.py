@@ -238,6 +238,7 @@ def test_missing_tables_are_named_and_the_rest_is_made(world, tmp_path, capsys):
     for exp in ("main", "prior_strength"):
         shutil.copytree(world["results"] / exp, results / exp)
     (results / "main" / "checks.parquet").unlink()
+    (results / "prior_strength" / "runs.parquet").write_bytes(b"not parquet")
     out = tmp_path / "out"
     rc = figures.main(
         ["--results", str(results), "--out", str(out), "--data", str(world["data"])]
@@ -249,9 +250,10 @@ def test_missing_tables_are_named_and_the_rest_is_made(world, tmp_path, capsys):
     assert str(results / "early_stopping" / "checks.parquet") in err
     assert str(results / "confidence" / "runs.parquet") in err
     assert str(results / "case_study" / "active_set.parquet") in err
+    assert f"{results / 'prior_strength' / 'runs.parquet'} cannot be read" in err
     # What the results allow is still written; Fig. 3 falls back to main's curves.
     assert (out / "tables" / "table1.md").is_file()
-    assert (out / "tables" / "prior_strength.md").is_file()
+    assert not (out / "tables" / "prior_strength.md").exists()
     assert (out / "figures" / "fig3_case_study.png").is_file()
     assert not (out / "tables" / "confidence.md").exists()
     report = (out / "REPORT.md").read_text()
