@@ -625,7 +625,11 @@ def _results_section(ctx: Mapping) -> list[str]:
         if not res.has(exp, "runs"):
             lines.append(f"| {exp} | missing | — | — | — | — |")
             continue
-        runs = res.table(exp, "runs")
+        try:
+            runs = res.table(exp, "runs")
+        except Exception:  # noqa: BLE001 - unreadable: say so, keep the report
+            lines.append(f"| {exp} | unreadable | — | — | — | — |")
+            continue
         man = res.manifest(exp)
         status = man.get("status", "no manifest")
         git = man.get("git", {}) or {}
