@@ -66,9 +66,10 @@ SMOKE = dict(
 )
 
 # Chunk budgets. Work is counted in candidate-grasp evaluations (about one exact
-# Beta draw each): 2.4e9 is 400 rollouts of 3000 steps over K = 2000 grasps, about
-# a minute and a half on a 2-core CPU. Memory is the engine's estimated state.
-WORK_BUDGET = 2.4e9
+# Beta draw each): 8e8 holds the 100 rollouts of 3000 steps over K = 2000 grasps of
+# one object (about 90 s on a 2-core CPU), or several objects of a cheaper method.
+# It bounds what an interruption loses. Memory is the engine's estimated state.
+WORK_BUDGET = 8e8
 MEMORY_BUDGET = 1.5e9
 DIRICHLET_SAMPLES = 3000
 
@@ -258,17 +259,22 @@ def _rollout_work(
     method: str, k: int, P: int, K: int, horizon: int, check_every: int
 ) -> float:
     steps = horizon * (_candidates(method, k, K) + 32.0)
-    checks = (horizon // check_every) * DIRICHLET_SAMPLES * (P + 1)
-    return steps + checks
+    n_checks = horizon // check_every if check_every else 0
+    return steps + n_checks * DIRICHLET_SAMPLES * (P + 1)
 
 
-def _rollout_memory(P: int, K: int, horizon: int, cfg: ExperimentPlan, act: bool):
-    c1 = horizon // cfg.record_every + 2
-    c2 = horizon // cfg.check_every + 1
-    mem = P * K * 16 + (c1 + 4 * c2) * 4 + 256
+def _trial_memory(
+    P: int, K: int, G: int, R: int, cfg: ExperimentPlan, act: bool
+) -> float:
+    """Bytes a chunk holds per (object, trial): the engine's tables of the pair
+    (p, q, masks, rankings: about 20 bytes a grasp slot) and the results of its
+    G x R rollouts. The rollout state itself lives in the engine's mini-batches."""
+    c1 = cfg.horizon // cfg.record_every + 2
+    c2 = cfg.horizon // cfg.check_every + 1
+    per_rollout = (c1 + 4 * c2) * 4 + 256
     if act:
-        mem += c2 * P * HPARAM_DEFAULTS["k"] * 4
-    return mem
+        per_rollout += c2 * P * HPARAM_DEFAULTS["k"] * 4
+    return P * K * 20 + G * R * per_rollout
 
 
 def _safe(name: str) -> str:
@@ -304,12 +310,11 @@ def plan_chunks(
         for i, o in enumerate(cfg.objects):
             groups.setdefault((_pose_bucket(o.num_poses), o.num_grasps), []).append(i)
         for (P, K), members in groups.items():
-            w = _rollout_work(arm.method, k, P, K, cfg.horizon, cfg.check_every)
-            m = _rollout_memory(P, K, cfg.horizon, cfg, record_act)
+            every = cfg.check_every if record_checks else 0
+            w = _rollout_work(arm.method, k, P, K, cfg.horizon, every)
+            m = _trial_memory(P, K, G, cfg.rollouts, cfg, record_act)
             per_trial = G * cfg.rollouts
-            cap = int(
-                min(work_budget / (per_trial * w), memory_budget / (per_trial * m))
-            )
+            cap = int(min(work_budget / (per_trial * w), memory_budget / m))
             cap = max(1, cap)
             T = cfg.trials
             if cap >= T:

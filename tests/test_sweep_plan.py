@@ -189,7 +189,7 @@ def test_plan_covers_every_run_once_and_is_deterministic():
 
 def test_plan_splits_trials_when_one_object_is_too_big():
     plan = _plan([_obj("a", 4, 2000)], [("borges_2000", "", {})], trials=10)
-    per_trial = 2 * sweep._rollout_work("borges_2000", 100, 4, 2000, 300, 100)
+    per_trial = 2 * sweep._rollout_work("borges_2000", 100, 4, 2000, 300, 0)
     chunks = sweep.plan_chunks(plan, work_budget=3.5 * per_trial)
     sizes = [len(c.trials) for c in chunks]
     assert len(chunks) > 1 and sum(sizes) == 10 and max(sizes) - min(sizes) <= 1
