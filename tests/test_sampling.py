@@ -268,6 +268,24 @@ def test_beta_ppf_posterior_like_shapes():
             np.testing.assert_allclose(got, expected, rtol=0, atol=1e-4)
 
 
+def test_beta_ppf_elementwise_independent():
+    """An element's quantile does not depend on what else is in the call (some
+    elements take the fixed-cost path, others the packed fallback)."""
+    a = np.array([1.5, 2001.0, 1.0, 3000.0, 0.3, 7.0, 1500.0, 2.0], np.float32)
+    b = np.array([1.5, 1001.0, 3.0, 3000.0, 2.0, 700.0, 10.0, 1.0], np.float32)
+    ppf = jax.jit(sampling.beta_ppf)
+    together = np.asarray(ppf(np.float32(0.05), a, b))
+    alone = [
+        np.asarray(ppf(np.float32(0.05), a[i : i + 1], b[i : i + 1]))[0]
+        for i in range(8)
+    ]
+    halves = np.concatenate(
+        [np.asarray(ppf(np.float32(0.05), a[i : i + 4], b[i : i + 4])) for i in (0, 4)]
+    )
+    np.testing.assert_array_equal(together, np.array(alone))
+    np.testing.assert_array_equal(together, halves)
+
+
 def test_betainc_matches_scipy():
     rng = np.random.default_rng(12)
     a = rng.choice(PPF_SHAPES, 20_000)
