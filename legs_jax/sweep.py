@@ -72,6 +72,8 @@ SMOKE = dict(
 WORK_BUDGET = 8e8
 MEMORY_BUDGET = 1.5e9
 DIRICHLET_SAMPLES = 3000
+# Default number of CPU devices on a CPU-only machine (one per core up to this).
+MAX_DEFAULT_HOST_DEVICES = 8
 
 
 class SweepError(Exception):
@@ -615,8 +617,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--devices",
         type=_positive_int,
         metavar="N",
-        help="use the first N local devices (default all); on a CPU-only machine N "
-        "host devices are created, one per core is a good choice",
+        help="use the first N local devices (default all: every GPU, or on a "
+        "CPU-only machine one CPU device per core, at most 8); results do not "
+        "depend on it",
     )
     out.add_argument(
         "--dry-run",
@@ -686,11 +689,14 @@ def _compile_cache(option: str | None) -> str | None:
 
 
 def _set_device_flags(n: int | None) -> None:
-    """Ask XLA for ``n`` host devices; takes effect only before JAX starts."""
-    if n is None or n < 2:
-        return
+    """Ask XLA for host (CPU) devices: ``n``, or by default one per core (at most
+    8), since separate CPU devices run rollouts in parallel. It only matters on a
+    CPU-only machine, takes effect only before JAX starts, and an explicit
+    ``--xla_force_host_platform_device_count`` in XLA_FLAGS wins."""
+    if n is None:
+        n = min(os.cpu_count() or 1, MAX_DEFAULT_HOST_DEVICES)
     flags = os.environ.get("XLA_FLAGS", "")
-    if "xla_force_host_platform_device_count" in flags:
+    if n < 2 or "xla_force_host_platform_device_count" in flags:
         return
     os.environ["XLA_FLAGS"] = (
         flags + f" --xla_force_host_platform_device_count={n}"

@@ -3,7 +3,11 @@
 - ``--smoke`` runs every experiment and writes the documented tables.
 - A sweep killed with SIGKILL after its first chunk, then resumed, gives the same
   bytes as an uninterrupted one.
-- Four forced CPU devices give the same bytes as one.
+- Ctrl-C stops cleanly and says what was kept.
+- The jax.distributed code path (one process; two processes on this host in a slow
+  test) gives the same bytes as a plain run.
+- Four forced CPU devices give the same bytes as one (slow: it compiles the
+  sharded programs).
 """
 
 from __future__ import annotations
@@ -170,6 +174,7 @@ def test_sigkill_then_resume_equals_uninterrupted(tmp_path):
     assert _tables(out) == _tables(tmp_path / "ref")
 
 
+@pytest.mark.slow
 def test_four_cpu_devices_equal_one(tmp_path):
     args = ["--smoke", "--experiment", "main", "--methods", "borges_2000", "legs"]
     one = _sweep([*args, "--out", str(tmp_path / "one")], _env(1))

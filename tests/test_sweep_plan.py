@@ -24,6 +24,12 @@ from legs_jax import problem, results, sweep, synthetic
 
 
 # ---------------------------------------------------------------------- helpers
+@pytest.fixture(autouse=True)
+def _keep_xla_flags(monkeypatch):
+    """main() asks for host devices through XLA_FLAGS: keep that in this test."""
+    monkeypatch.setenv("XLA_FLAGS", os.environ.get("XLA_FLAGS", ""))
+
+
 @pytest.fixture
 def fake_engine(monkeypatch):
     calls = []
@@ -453,9 +459,8 @@ def test_cli_refuses_bad_arguments(args, match, capsys):
 
 
 def test_cli_refuses_bad_problem_and_too_many_trials(
-    tmp_path, probs, fake_engine, capsys, monkeypatch
+    tmp_path, probs, fake_engine, capsys
 ):
-    monkeypatch.setenv("XLA_FLAGS", os.environ.get("XLA_FLAGS", ""))
     bad = tmp_path / "bad.npz"
     bad.write_bytes(b"not a zip")
     code, err = _cli(["--experiment", "main", "--problems", str(bad)], capsys)
