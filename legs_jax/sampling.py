@@ -143,8 +143,12 @@ def uniform_rows(keys: jax.Array, n: int) -> jax.Array:
 # --------------------------------------------------------------------------------------
 
 
-def _mt_try(d, c, w0, w1):
-    """One Marsaglia-Tsang try for Gamma(d + 1/3); returns (value, accepted)."""
+def _mt_try(d, c, w0, w1, rejected):
+    """One Marsaglia-Tsang try for Gamma(d + 1/3) from the words (w0, w1).
+
+    Returns the draw where the try is accepted, else ``rejected`` (negative). One
+    output array, so that XLA computes the try in a single fusion.
+    """
     # Standard normal from erf_inv of a uniform on (-1, 1).
     s = ((w0 >> jnp.uint32(8)).astype(jnp.float32) + 0.5) * jnp.float32(2.0**-23) - 1.0
     x = jnp.float32(math.sqrt(2.0)) * jax.lax.erf_inv(s)
@@ -157,7 +161,7 @@ def _mt_try(d, c, w0, w1):
     thr = 0.5 * x * x + d * (3.0 * (lw - w) - w * w * (3.0 + w))
     ok = ok_v & (jnp.log(u) < thr)
     v = (1.0 + w) * (1.0 + w) * (1.0 + w)
-    return d * v, ok
+    return jnp.where(ok, d * v, rejected)
 
 
 def _select_bit(word: jax.Array, rank: jax.Array) -> jax.Array:
@@ -202,49 +206,48 @@ def _gamma_ge1(k0, k1, a, ctr0, ctr1, tries_per_round=4, capacity=None):
     try; try t uses ``ctr1 + t``. Every element takes the first accepted try of its
     own sequence 0, 1, 2, ..., whatever the batch holds, so the values do not
     depend on which rejected elements share a retry round.
+
+    A pending element holds minus the number of tries it has used, so the state of
+    the retry loop is the one output array.
     """
     rows, m = a.shape
     d = a - jnp.float32(1.0 / 3.0)
     c = jax.lax.rsqrt(9.0 * d)
     w0, w1 = threefry2x32(k0, k1, ctr0[None], ctr1[None])
-    g, ok = _mt_try(d, c, w0, w1)
+    g = _mt_try(d, c, w0, w1, jnp.float32(-1.0)).reshape(-1)
     total = rows * m
     if capacity is None:
         capacity = total // 32 + 32
     # At least 2 slots: XLA compiles one-element arrays differently, and the last
     # bit of a value must not depend on the buffer it went through.
     capacity = max(2, min(total, capacity))
-    d, c, g, ok = d.reshape(-1), c.reshape(-1), g.reshape(-1), ok.reshape(-1)
+    a_flat = a.reshape(-1)
     k0, k1 = k0.reshape(-1), k1.reshape(-1)
 
-    def cond(state):
-        return ~jnp.all(state[1])
+    def cond(g):
+        return jnp.any(g < 0.0)
 
-    def body(state):
-        g, ok, tried = state
-        idx = _pending_slots(~ok, capacity)  # [C], total where unused
+    def body(g):
+        idx = _pending_slots(g < 0.0, capacity)  # [C], total where unused
         idx_c = jnp.minimum(idx, total - 1)
         row, col = idx_c // m, idx_c % m
-        ds, cs = d[idx_c], c[idx_c]
-        r0, r1 = k0[row], k1[row]
-        c0 = ctr0[col]
-        first = ctr1[col] + tried[idx_c]
+        ds = a_flat[idx_c] - jnp.float32(1.0 / 3.0)
+        cs = jax.lax.rsqrt(9.0 * ds)
+        r0, r1, c0 = k0[row], k1[row], ctr0[col]
+        tried = -g[idx_c]
+        first = ctr1[col] + tried.astype(jnp.uint32)
 
-        def one_try(t, acc):
-            gs, oks = acc
+        def one_try(t, gs):
             v0, v1 = threefry2x32(r0, r1, c0, first + t.astype(jnp.uint32))
-            gt, okt = _mt_try(ds, cs, v0, v1)
-            return jnp.where(oks, gs, gt), oks | okt
+            gt = _mt_try(ds, cs, v0, v1, jnp.float32(-1.0))
+            return jnp.where(gs < 0.0, gt, gs)
 
-        init = (jnp.zeros(idx.shape, jnp.float32), jnp.zeros(idx.shape, bool))
-        gs, oks = jax.lax.fori_loop(0, tries_per_round, one_try, init)
-        g = g.at[idx].set(gs, mode="drop")
-        ok = ok.at[idx].set(oks, mode="drop")
-        tried = tried.at[idx].add(jnp.uint32(tries_per_round), mode="drop")
-        return g, ok, tried
+        init = jnp.full(idx.shape, -1.0, jnp.float32)
+        gs = jax.lax.fori_loop(0, tries_per_round, one_try, init)
+        gs = jnp.where(gs < 0.0, -(tried + tries_per_round), gs)
+        return g.at[idx].set(gs, mode="drop")
 
-    tried = jnp.ones((total,), jnp.uint32)
-    g, _, _ = jax.lax.while_loop(cond, body, (g, ok, tried))
+    g = jax.lax.while_loop(cond, body, g)
     return g.reshape(rows, m)
 
 
