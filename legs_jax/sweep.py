@@ -1073,6 +1073,7 @@ def _write_manifest(
                     "device",
                     "host",
                     "process_id",
+                    "git",
                     "finished",
                 )
             }
@@ -1101,6 +1102,9 @@ def _write_manifest(
             "object_ids": {o.name: o.object_id for o in plan.objects},
         },
         "git": _git_commit(),
+        "git_commits_of_chunks": sorted(
+            {str((c.get("git") or {}).get("commit")) for c in chunks.values()}
+        ),
         "versions": _versions(),
         "chunks_total": len(plan.chunks),
         "chunks_done": len(chunks),
@@ -1262,6 +1266,8 @@ def run_experiment(
         plan.name,
     )
     cache = _ProblemCache()
+    git = _git_commit()
+    session["git"] = git
     t_session = time.perf_counter()
     computed = 0
     try:
@@ -1288,6 +1294,7 @@ def run_experiment(
                 "device": _device_info(devices),
                 "host": socket.gethostname(),
                 "process_id": dist.process_id,
+                "git": git,
                 "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
             }
             res.write_chunk(chunks_dir, c.id, tables, meta)
@@ -1358,6 +1365,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if (a.all or (a.smoke and not a.experiment))
         else list(dict.fromkeys(a.experiment))
     )
+    started = False
     try:
         from legs_jax.errors import ConfigError
         from legs_jax.problem import ProblemFileError
@@ -1384,6 +1392,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         for plan in plans:
             _prepare_dir(plan, out, a.overwrite, dist.leader)
         _barrier(dist, "legs_jax-sweep-setup")
+        started = True
         t0 = time.perf_counter()
         statuses = {}
         for plan in plans:
@@ -1394,9 +1403,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                 dist=dist,
                 quiet=a.quiet,
             )
-        _say(f"done in {time.perf_counter() - t0:.1f} s: {statuses}", a.quiet)
+        summary = ", ".join(f"{k} {v}" for k, v in statuses.items())
+        _say(f"done in {time.perf_counter() - t0:.1f} s: {summary}", a.quiet)
         return 0
     except KeyboardInterrupt:
+        if not started:
+            _say("interrupted before any chunk ran; nothing was written")
         return 130
     except (SweepError, ConfigError, ProblemFileError) as e:
         print(f"error: {e}", file=sys.stderr)
