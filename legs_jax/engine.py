@@ -59,6 +59,8 @@ __all__ = [
     "TRACED_HPARAMS",
     "RunResult",
     "legs_prune",
+    "compiled",
+    "dirichlet_checks",
     "make_tables",
     "run",
     "simulate",
@@ -155,6 +157,52 @@ def _gap(tables: Tables, ot: jax.Array, rec: jax.Array) -> jax.Array:
     return total - _performance(tables, ot, rec)
 
 
+def dirichlet_checks(
+    rollout_keys: jax.Array, out: dict[str, jax.Array]
+) -> dict[str, jax.Array]:
+    """Replace the check inputs of a :func:`simulate` output by the bounds.
+
+    Check c (1-based) of a rollout draws from ``fold_in(check_key, c)``; both
+    variants (p̂* over all candidates, over attempted ones) use the same samples.
+    Adds ``check_p_lower`` and ``check_p_lower_attempted`` [B, C2] (NaN when the
+    attempted values are absent) and removes the inputs.
+    """
+    out = dict(out)
+    counts = out.pop("check_counts")  # [B, C2, P]
+    observed = out.pop("check_observed")
+    v_all = out.pop("check_values")
+    v_att = out.pop("check_values_attempted", None)
+    B, C2, _ = counts.shape
+    ck = keys_mod.check_key(rollout_keys)
+
+    def one(args):
+        idx, c, o, va, vt = args
+        k = keys_mod.step_keys(ck, idx)
+        if vt is None:
+            lo = sampling.dirichlet_lower_bound(
+                k, c, o, va, DELTA_STOP, NUM_DIRICHLET_SAMPLES
+            )
+            return lo, jnp.full(B, jnp.nan, jnp.float32)
+        both = sampling.dirichlet_lower_bound(
+            jnp.concatenate([k, k]),
+            jnp.concatenate([c, c]),
+            jnp.concatenate([o, o]),
+            jnp.concatenate([va, vt]),
+            DELTA_STOP,
+            NUM_DIRICHLET_SAMPLES,
+        )
+        return both[:B], both[B:]
+
+    swap = lambda x: None if x is None else jnp.moveaxis(x, 1, 0)  # noqa: E731
+    idx = jnp.arange(1, C2 + 1, dtype=jnp.int32)
+    lo, lo_att = jax.lax.map(
+        one, (idx, swap(counts), swap(observed), swap(v_all), swap(v_att))
+    )
+    out["check_p_lower"] = jnp.moveaxis(lo, 0, 1).astype(jnp.float32)
+    out["check_p_lower_attempted"] = jnp.moveaxis(lo_att, 0, 1).astype(jnp.float32)
+    return out
+
+
 def simulate(
     tables: Tables,
     ot: jax.Array,
@@ -169,6 +217,7 @@ def simulate(
     attempted_variant: bool = True,
     record_active_set: bool = False,
     trajectory: bool = False,
+    dirichlet: bool = True,
 ) -> dict[str, jax.Array]:
     """Run B rollouts of ``method`` for ``horizon`` steps (pure; jit- and vmap-able).
 
@@ -182,6 +231,10 @@ def simulate(
       record_active_set: return the active set at each check.
       trajectory: also return per-step ``pose``, ``grasp``, ``reward``, ``live`` and
         ``in_candidates`` [B, H] (for tests: costs a dense candidate set a step).
+      dirichlet: compute the Dirichlet bounds inside (else return their inputs
+        ``check_counts``, ``check_observed``, ``check_values`` and
+        ``check_values_attempted`` [B, C2, P] for :func:`dirichlet_checks`, which
+        :func:`run` compiles once and shares between methods).
     Returns:
       dict of arrays with leading axis B: ``gaps`` [B, 1 + H // L] (steps 0, L,
       2L, ...; L = gcd(record_every, check_every)), ``final_gap``,
@@ -196,7 +249,6 @@ def simulate(
     ctx = Ctx(tables, ot, hp)
     env_k = keys_mod.env_key(rollout_keys)
     met_k = keys_mod.method_key(rollout_keys)
-    chk_k = keys_mod.check_key(rollout_keys)
     has_grasp = tables.n_valid > 0  # [N, P]
     bi = jnp.arange(B)
 
@@ -274,22 +326,14 @@ def simulate(
 
     def check(c: _Loop, idx):
         v_all, v_att = m.estimates(c.mstate, ctx, cfg)
-        ck = keys_mod.step_keys(chk_k, idx)
-        counts = c.drops.astype(jnp.float32)
-        lower = sampling.dirichlet_lower_bound(
-            ck, counts, c.observed, v_all, DELTA_STOP, NUM_DIRICHLET_SAMPLES
-        )
-        if attempted_variant:
-            lower_att = sampling.dirichlet_lower_bound(
-                ck, counts, c.observed, v_att, DELTA_STOP, NUM_DIRICHLET_SAMPLES
-            )
-        else:
-            lower_att = jnp.full(B, jnp.nan, jnp.float32)
         out = dict(
-            check_p_lower=lower.astype(jnp.float32),
-            check_p_lower_attempted=lower_att.astype(jnp.float32),
+            check_counts=c.drops.astype(jnp.float32),
+            check_observed=c.observed,
+            check_values=v_all.astype(jnp.float32),
             check_true_performance=_performance(tables, ot, c.rec),
         )
+        if attempted_variant:
+            out["check_values_attempted"] = v_att.astype(jnp.float32)
         if record_active_set:
             if m.active_set is None:
                 act = jnp.full((B, P, cfg.k), -1, jnp.int32)
@@ -331,6 +375,8 @@ def simulate(
     if checks is not None:
         for name, v in checks.items():
             out[name] = jnp.moveaxis(v, 0, 1)  # [C2, B, ...] -> [B, C2, ...]
+        if dirichlet:
+            out = dirichlet_checks(rollout_keys, out)
     if trajectory:
         flat = []
         for tr in traj_parts:
@@ -485,16 +531,26 @@ def _default_batch_size(method: str, platform: str, cfg: Config) -> int:
 
 
 @functools.lru_cache(maxsize=64)
-def _compiled(
+def compiled(
     method: str,
     cfg: Config,
     horizon: int,
-    record_every: int,
-    check_every: int | None,
-    attempted_variant: bool,
-    record_active_set: bool,
-    devices: tuple,
+    record_every: int = 10,
+    check_every: int | None = 100,
+    attempted_variant: bool = True,
+    record_active_set: bool = False,
+    trajectory: bool = False,
+    grid: bool = False,
+    devices: tuple | None = None,
+    dirichlet: bool = True,
 ) -> Callable:
+    """The jitted :func:`simulate` for one static configuration (cached).
+
+    Returns ``f(tables, ot, rollout_keys, hp) -> dict``. With ``grid=True`` the
+    function is ``jit(vmap(simulate))`` over a leading axis G of ``rollout_keys``
+    [G, B] and of every ``hp`` leaf [G, B]. With several ``devices`` the batch axis
+    is sharded over them (``shard_map``); the tables are replicated.
+    """
     fn = functools.partial(
         simulate,
         method=method,
@@ -504,19 +560,35 @@ def _compiled(
         check_every=check_every,
         attempted_variant=attempted_variant,
         record_active_set=record_active_set,
+        trajectory=trajectory,
+        dirichlet=dirichlet,
     )
-    if len(devices) == 1:
+    if grid:
+        plain = fn
+        fn = lambda tables, ot, ks, hp: jax.vmap(  # noqa: E731
+            lambda k, h: plain(tables, ot, k, h)
+        )(ks, hp)
+    return _jit_rows(fn, devices, (None, "b", "b", "b"), grid)
+
+
+@functools.lru_cache(maxsize=8)
+def compiled_checks(devices: tuple | None = None) -> Callable:
+    """The jitted :func:`dirichlet_checks` (one program for every method)."""
+    return _jit_rows(dirichlet_checks, devices, ("b", "b"), False)
+
+
+def _jit_rows(fn: Callable, devices, in_axes, grid: bool) -> Callable:
+    """jit ``fn``; with several devices, shard the rows (axis "b") over them."""
+    if devices is None or len(devices) == 1:
         return jax.jit(fn)
     from jax.sharding import Mesh
     from jax.sharding import PartitionSpec as Pspec
 
     mesh = Mesh(np.array(devices), ("b",))
+    row = Pspec(None, "b") if grid else Pspec("b")
+    specs = tuple(Pspec() if a is None else row for a in in_axes)
     sharded = jax.shard_map(
-        fn,
-        mesh=mesh,
-        in_specs=(Pspec(), Pspec("b"), Pspec("b"), Pspec("b")),
-        out_specs=Pspec("b"),
-        check_vma=False,
+        fn, mesh=mesh, in_specs=specs, out_specs=row, check_vma=False
     )
     return jax.jit(sharded)
 
@@ -683,10 +755,12 @@ def run(
         per_dev = batch_size or _default_batch_size(method, platform, cfg)
         per_dev = min(per_dev, 1 << max(0, (-(-sel.size // n_dev) - 1).bit_length()))
         Bc = per_dev * n_dev
-        fn = _compiled(
+        fn = compiled(
             method, cfg, H, record_every, check_every,
-            bool(stop_variant_attempted), bool(record_active_set), devices,
+            bool(stop_variant_attempted), bool(record_active_set),
+            devices=devices, dirichlet=False,
         )  # fmt: skip
+        checks_fn = compiled_checks(devices) if check_every else None
         pending = []
         for start in range(0, sel.size, Bc):
             idx = sel[start : start + Bc]
@@ -703,7 +777,10 @@ def run(
                 args = jax.device_put(args, row_sharding)
             else:
                 args = jax.device_put(args, devices[0])
-            pending.append((idx, fn(put_tables, *args)))
+            out = fn(put_tables, *args)
+            if checks_fn is not None:
+                out = checks_fn(args[1], out)
+            pending.append((idx, out))
             if len(pending) > 1:
                 done += _collect(pending.pop(0), store, gap_cols, curve_steps, H)
                 _report(bar, callback, done)

@@ -240,8 +240,13 @@ def prune_mask(
     a = jnp.where(active, alpha, 1.0)
     b = jnp.where(active, beta, 1.0)
     d = delta[:, None]
-    lower = sampling.beta_ppf(d, a, b)  # X_{i,ℓ}
-    upper = sampling.beta_ppf(1.0 - d, a, b)  # X_{i,u}
+    n = a.shape[1]
+    # One call for both bounds (one copy of the quantile solver in the program).
+    qs = jnp.concatenate(
+        [jnp.broadcast_to(d, a.shape), jnp.broadcast_to(1.0 - d, a.shape)], 1
+    )
+    both = sampling.beta_ppf(qs, jnp.concatenate([a, a], 1), jnp.concatenate([b, b], 1))
+    lower, upper = both[:, :n], both[:, n:]  # X_{i,ℓ}, X_{i,u}
     x_star_lower = jnp.max(jnp.where(active, lower, -jnp.inf), axis=1, keepdims=True)
     i_star = argmin_id_of_max(a / (a + b), active, ids)
     bad = (upper < x_star_lower) | (upper < gamma[:, None])
