@@ -41,7 +41,15 @@ import numpy as np
 
 from legs_jax import results as res
 
-__all__ = ["Chunk", "ExperimentPlan", "SweepError", "main", "plan_chunks"]
+__all__ = [
+    "Chunk",
+    "ExperimentPlan",
+    "SweepError",
+    "finish_experiment",
+    "main",
+    "plan_chunks",
+    "run_experiment",
+]
 
 # Version of the result layout; part of every configuration hash.
 RESULTS_VERSION = 1
@@ -1221,11 +1229,11 @@ def run_experiment(
     devices,
     dist: _Dist,
     quiet: bool,
-) -> str:
-    """Run the missing chunks of one experiment and merge when complete.
+) -> dict[str, Any]:
+    """Run this process's missing chunks of one experiment.
 
-    Returns "complete", "partial" (other processes' chunks missing) or raises
-    KeyboardInterrupt after saving what was finished.
+    Returns the session record for the manifest; raises KeyboardInterrupt after
+    saying what was kept.
     """
     d = _exp_dir(out, plan.name)
     chunks_dir = d / "chunks"
@@ -1318,9 +1326,16 @@ def run_experiment(
     session["ended"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
     session["wall_s"] = time.perf_counter() - t_session
     session["chunks_computed"] = computed
-    _barrier(dist, f"legs_jax-sweep-{plan.name}-done")
-    if not dist.leader:
-        return "partial"
+    return session
+
+
+def finish_experiment(
+    plan: ExperimentPlan, out: Path, session: dict[str, Any], quiet: bool
+) -> str:
+    """Merge the chunks of a complete experiment into its final tables and write
+    the manifest; returns "complete" or "incomplete" (chunks missing)."""
+    d = _exp_dir(out, plan.name)
+    chunks_dir = d / "chunks"
     missing = [c.id for c in plan.chunks if not res.chunk_done(chunks_dir, c.id)]
     if missing:
         _write_manifest(plan, d, "incomplete", session)
@@ -1329,7 +1344,7 @@ def run_experiment(
             f"{chunks_dir}; copy every host's chunks there and run this command "
             "again without --coordinator to merge",
         )
-        return "partial"
+        return "incomplete"
     counts = _merge(plan, d)
     _write_manifest(plan, d, "complete", session)
     _say(
@@ -1394,15 +1409,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         _barrier(dist, "legs_jax-sweep-setup")
         started = True
         t0 = time.perf_counter()
-        statuses = {}
+        statuses, sessions = {}, {}
         for plan in plans:
-            statuses[plan.name] = run_experiment(
-                plan,
-                out,
-                devices=devices,
-                dist=dist,
-                quiet=a.quiet,
+            sessions[plan.name] = run_experiment(
+                plan, out, devices=devices, dist=dist, quiet=a.quiet
             )
+            if dist.num_processes == 1:
+                statuses[plan.name] = finish_experiment(
+                    plan, out, sessions[plan.name], a.quiet
+                )
+        if dist.num_processes > 1:
+            # Every process has finished its chunks; the leader merges.
+            _barrier(dist, "legs_jax-sweep-done")
+            for plan in plans:
+                statuses[plan.name] = (
+                    finish_experiment(plan, out, sessions[plan.name], a.quiet)
+                    if dist.leader
+                    else "computed"
+                )
         summary = ", ".join(f"{k} {v}" for k, v in statuses.items())
         _say(f"done in {time.perf_counter() - t0:.1f} s: {summary}", a.quiet)
         return 0
