@@ -657,7 +657,7 @@ def run(
         )
     O, T_all, P, K = batch.shape
     G, hp = _hparam_grid(method, hparams, K)
-    obj = list(np.asarray(object_ids).reshape(-1)) if object_ids is not None else []
+    obj = np.asarray(object_ids).reshape(-1).tolist() if object_ids is not None else []
     if len(obj) != O:
         raise ConfigError(
             f"object_ids has {len(obj)} entries, the batch has {O} objects"
@@ -666,7 +666,9 @@ def run(
         if not _is_int(x) or not 0 <= x < 2**31:
             raise ConfigError(f"object ids must be integers in [0, 2**31), got {x!r}")
     trials = (
-        list(range(T_all)) if trials is None else list(np.asarray(trials).reshape(-1))
+        list(range(T_all))
+        if trials is None
+        else np.asarray(trials).reshape(-1).tolist()
     )
     if not trials:
         raise ConfigError("trials is empty")

@@ -1,0 +1,310 @@
+"""engine.run: validation, determinism, batching, devices, result layout, and the
+behaviour the paper reports on a synthetic problem built for it."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from legs_jax import engine, keys
+from legs_jax import reference as ref
+from legs_jax.errors import ConfigError
+from legs_jax.problem import Problem, stack
+from legs_jax.synthetic import make_problem
+
+# ------------------------------------------------------------------- problems
+
+
+def _hand_problem(p, q, landing=None, topple=None, name="hand") -> Problem:
+    p = np.asarray(p, np.float32)
+    q = np.asarray(q, np.float32)
+    T, P, K = p.shape
+    landing = np.full(P, 1.0 / P, np.float32) if landing is None else landing
+    topple = np.eye(P, dtype=np.float32) if topple is None else topple
+    return Problem(
+        name=name,
+        landing=np.asarray(landing, np.float32),
+        topple=np.asarray(topple, np.float32),
+        robustness=p,
+        prior=q,
+        valid=np.ones((T, P, K), bool),
+        grasp_center=np.zeros((T, P, K, 3), np.float32),
+        grasp_axis=np.zeros((T, P, K, 3), np.float32),
+        grasp_width=np.zeros((T, P, K), np.float32),
+        grasp_height=np.zeros((T, P, K), np.float32),
+        pose_transform=np.tile(np.eye(4, dtype=np.float32), (P, 1, 1)),
+        pose_valid=np.ones(P, bool),
+    ).validate()
+
+
+def hidden_good_problem(seed: int = 0) -> Problem:
+    """One pose, K = 200: the top-100 grasps by prior q are all bad (p < 0.05, q in
+    [0.5, 0.6]); 10 of the other 100 (q in [0.1, 0.49]) are good (p ~ 0.9)."""
+    rng = np.random.default_rng(seed)
+    K = 200
+    p = rng.uniform(0.0, 0.05, K)
+    q = np.empty(K)
+    q[:100] = rng.uniform(0.5, 0.6, 100)
+    q[100:] = rng.uniform(0.1, 0.49, 100)
+    good = 100 + rng.choice(100, 10, replace=False)
+    p[good] = rng.uniform(0.85, 0.95, 10)
+    perm = rng.permutation(K)  # grasp ids are not sorted by q
+    return _hand_problem(p[perm][None, None], q[perm][None, None], name="hidden-good")
+
+
+HIDDEN = dict(num_rollouts=8, horizon=3000, object_ids=[11], progress=False)
+
+
+@pytest.fixture(scope="module")
+def hidden():
+    return stack([hidden_good_problem()])
+
+
+@pytest.fixture(scope="module")
+def legs_hidden(hidden):
+    return engine.run(hidden, "legs", batch_size=8, record_active_set=True, **HIDDEN)
+
+
+@pytest.fixture(scope="module")
+def borges_hidden(hidden):
+    return engine.run(hidden, "borges_100", batch_size=8, **HIDDEN)
+
+
+# ------------------------------------------------------------------ behaviour
+
+
+def test_legs_escapes_a_bad_top_100(hidden, legs_hidden, borges_hidden):
+    """When the top-100 by prior holds no good grasp, BORGES (K=100) cannot do
+    better than the K100 upper bound, and LEGS, which refills its active set from
+    the rest of the reservoir, ends with a lower gap (the paper, Section 5)."""
+    k100 = engine.run(hidden, "k100_ub", batch_size=8, **HIDDEN)
+    legs, borges = legs_hidden.final_gap.ravel(), borges_hidden.final_gap.ravel()
+    bound = k100.final_gap.ravel()
+    assert np.ptp(bound) == 0 and bound[0] > 0.8
+    assert np.all(borges >= bound[0] - 1e-6)  # never below the K100 upper bound
+    assert np.all(borges_hidden.gap_curve >= bound[0] - 1e-6)
+    assert legs.mean() < borges.mean() - 0.3
+    assert stats.ttest_ind(legs, borges, equal_var=False).pvalue < 1e-3
+    assert np.mean(legs < bound[0]) >= 0.75  # most LEGS runs beat the bound itself
+    # LEGS got there by replacing grasps; the K=100 methods never replace any
+    assert legs_hidden.replacements.min() >= 100
+    assert borges_hidden.replacements.max() == 0
+
+
+def test_active_set_record(hidden, legs_hidden):
+    """The recorded active sets: shape [G, O, T, R, C2, P, k]; k distinct grasps
+    at first, drawn from the top-100 by q, and later from beyond it."""
+    act = legs_hidden.active_set
+    assert act.shape == (1, 1, 1, 8, 30, 1, 100)
+    q = hidden.prior[0, 0, 0]
+    rank = np.argsort(np.argsort(-q, kind="stable"), kind="stable")
+    first = act[0, 0, 0, :, 0, 0]  # [R, k] at step 100
+    assert np.all(np.sort(rank[first], axis=1) == np.arange(100))
+    last = act[0, 0, 0, :, -1, 0]
+    filled = last[last >= 0]
+    assert np.all(np.array([len(set(r[r >= 0])) for r in last]) == (last >= 0).sum(1))
+    assert np.mean(rank[filled] >= 100) > 0.3
+
+
+# ---------------------------------------------------------------- determinism
+
+
+def test_batch_split_and_offsets_are_bit_identical(hidden, borges_hidden):
+    """8 rollouts in one batch, in two batches of 4, and as two runs of 4 joined by
+    rollout_offset give bit-identical results."""
+    two = engine.run(hidden, "borges_100", batch_size=4, **HIDDEN)
+    kw = dict(HIDDEN, num_rollouts=4)
+    a = engine.run(hidden, "borges_100", batch_size=4, **kw)
+    b = engine.run(hidden, "borges_100", batch_size=4, rollout_offset=4, **kw)
+    for f in engine.RunResult._fields:
+        x = getattr(borges_hidden, f)
+        if x is None:
+            continue
+        np.testing.assert_array_equal(x, getattr(two, f), err_msg=f)
+        if x.ndim >= 4:
+            joined = np.concatenate([getattr(a, f), getattr(b, f)], axis=3)
+            np.testing.assert_array_equal(x, joined, err_msg=f)
+
+
+def test_grid_is_a_batch_axis_and_compiles_once(hidden):
+    """A zipped grid of 2 points equals two separate runs (same random numbers per
+    rollout), and new hyperparameter values or seeds do not recompile."""
+    kw = dict(HIDDEN, num_rollouts=4, batch_size=4)
+    grid = engine.run(hidden, "borges_100", hparams=dict(s=[1.0, 4.0]), **kw)
+    before = sum(engine.trace_counts().values())
+    one = engine.run(hidden, "borges_100", hparams=dict(s=4.0), **kw)
+    other = engine.run(hidden, "borges_100", hparams=dict(gamma=0.5), seed=3, **kw)
+    assert sum(engine.trace_counts().values()) == before  # no new trace
+    assert grid.final_gap.shape == (2, 1, 1, 4)
+    np.testing.assert_array_equal(grid.gap_curve[1:], one.gap_curve)
+    np.testing.assert_array_equal(grid.successes[1:], one.successes)
+    assert not np.array_equal(other.successes, one.successes)
+
+
+_DEVICE_SCRIPT = textwrap.dedent(
+    """
+    import json, jax, numpy as np
+    from legs_jax import engine
+    from legs_jax.problem import stack
+    from legs_jax.synthetic import make_problem
+    assert len(jax.devices()) == 4, jax.devices()
+    batch = stack([make_problem(2, num_poses=3, num_grasps=60, num_trials=2)])
+    kw = dict(object_ids=[5], num_rollouts=4, horizon=120, check_every=40,
+              hparams=dict(epsilon=0.3), progress=False)
+    one = engine.run(batch, "tql", devices=jax.devices()[:1], batch_size=8, **kw)
+    four = engine.run(batch, "tql", devices=jax.devices(), batch_size=2, **kw)
+    same = {f: bool(np.array_equal(getattr(one, f), getattr(four, f), equal_nan=True))
+            for f in engine.RunResult._fields if getattr(one, f) is not None}
+    print(json.dumps(same))
+    """
+)
+
+
+def test_results_do_not_depend_on_device_count():
+    """In a subprocess with 4 host devices: 8 rollouts on 1 device and sharded over
+    4 devices (2 each) are bit-identical."""
+    env = dict(os.environ)
+    env["XLA_FLAGS"] = (
+        env.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=4"
+    )
+    env["JAX_PLATFORMS"] = "cpu"
+    proc = subprocess.run(
+        [sys.executable, "-c", _DEVICE_SCRIPT],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    same = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert same and all(same.values()), same
+
+
+# -------------------------------------------------------------------- layout
+
+
+def test_result_layout_and_constant_rows():
+    """Shapes and steps for H not a multiple of the recording interval, several
+    objects and trials; Dex-Net's constant gap equals the reference's; grid
+    points with different static n run as separate groups."""
+    pa = make_problem(3, num_poses=2, num_grasps=50, num_trials=3, name="a")
+    pb = make_problem(4, num_poses=3, num_grasps=40, num_trials=3, name="b")
+    batch = stack([pa, pb])
+    calls = []
+    r = engine.run(
+        batch, "dexnet", object_ids=[1, 2], trials=[2, 0], num_rollouts=3,
+        horizon=105, record_every=10, check_every=50, progress=calls.append,
+        hparams=dict(n=[50, 100]),
+    )  # fmt: skip
+    shape = (2, 2, 2, 3)
+    assert r.final_gap.shape == shape and r.successes.dtype == np.int64
+    np.testing.assert_array_equal(r.curve_steps, list(range(0, 101, 10)) + [105])
+    np.testing.assert_array_equal(r.check_steps, [50, 100])
+    assert r.gap_curve.shape == shape + (12,)
+    assert r.check_p_lower.shape == shape + (2,)
+    assert r.active_set is None
+    np.testing.assert_array_equal(r.gap_curve[..., -1], r.final_gap)
+    for o, pbm in enumerate((pa, pb)):
+        for i, trial in enumerate((2, 0)):
+            want = ref.constant_gap(pbm, "dexnet", trial)
+            np.testing.assert_allclose(r.gap_curve[:, o, i], want, atol=2e-6)
+    np.testing.assert_array_equal(r.final_gap[0], r.final_gap[1])  # n is unused
+    assert calls and calls[-1] == 2 * 2 * 2 * 3
+    # checks switched off
+    r0 = engine.run(
+        batch, "dexnet", object_ids=[1, 2], trials=[2, 0], num_rollouts=3,
+        horizon=105, check_every=None, progress=False,
+    )  # fmt: skip
+    assert r0.check_steps.size == 0 and r0.check_p_lower.shape == (1,) + shape[1:] + (
+        0,
+    )
+    np.testing.assert_array_equal(r0.final_gap, r.final_gap[:1])
+
+
+def test_keys_contract():
+    k = keys.rollout_key(7, 3, 2, 5)
+    ks = keys.rollout_keys(7, np.array([3, 0]), np.array([2, 0]), np.array([5, 0]))
+    import jax
+
+    np.testing.assert_array_equal(jax.random.key_data(k), jax.random.key_data(ks[0]))
+    want = jax.random.fold_in(
+        jax.random.fold_in(jax.random.fold_in(jax.random.key(7), 3), 2), 5
+    )
+    np.testing.assert_array_equal(jax.random.key_data(k), jax.random.key_data(want))
+    env, met = keys.env_key(k), keys.method_key(k)
+    np.testing.assert_array_equal(
+        jax.random.key_data(env), jax.random.key_data(jax.random.fold_in(k, 0))
+    )
+    np.testing.assert_array_equal(
+        jax.random.key_data(met), jax.random.key_data(jax.random.fold_in(k, 1))
+    )
+    assert keys.object_id_from_name("bar_clamp") == keys.object_id_from_name(
+        "bar_clamp"
+    )
+    assert 0 <= keys.object_id_from_name("x") < 2**31
+
+
+# ---------------------------------------------------------------- validation
+
+_SMALL = stack([make_problem(0, num_poses=2, num_grasps=120, num_trials=2)])
+
+
+@pytest.mark.parametrize(
+    "method, kwargs, match",
+    [
+        ("nope", {}, "unknown method"),
+        ("legs", dict(hparams=dict(delta=0.0)), "delta must lie in"),
+        ("legs", dict(hparams=dict(delta=1.0)), "delta must lie in"),
+        ("legs", dict(hparams=dict(gamma=1.5)), "gamma must lie in"),
+        ("tql", dict(hparams=dict(epsilon=-0.1)), "epsilon must lie in"),
+        ("tql", dict(hparams=dict(eta=1.1)), "eta must lie in"),
+        ("legs", dict(hparams=dict(s=-1.0)), "s must be >= 0"),
+        ("legs", dict(hparams=dict(prior_offset=-1.0)), "prior_offset must be >= 0"),
+        ("legs", dict(hparams=dict(s=0.0, prior_offset=0.0)), "Beta\\(0, 0\\)"),
+        ("legs", dict(hparams=dict(k=0)), "k must be an integer >= 1"),
+        ("legs", dict(hparams=dict(k=2.5)), "k must be an integer >= 1"),
+        ("legs", dict(hparams=dict(k=121)), "exceeds the K = 120"),
+        ("legs", dict(hparams=dict(n=0)), "n must be an integer >= 1"),
+        ("legs", dict(hparams=dict(delta=float("nan"))), "finite"),
+        ("legs", dict(hparams=dict(delta="a")), "must be a number"),
+        ("legs", dict(hparams=dict(rho=1)), "unknown hyperparameter"),
+        ("legs", dict(hparams=dict(s=[1, 2], delta=[0.1, 0.2, 0.3])), "equal lengths"),
+        ("legs", dict(hparams=dict(k=[10, 20]), record_active_set=True), "single k"),
+        ("legs", dict(horizon=0), "horizon must be an integer >= 1"),
+        ("legs", dict(num_rollouts=0), "num_rollouts must be"),
+        ("legs", dict(record_every=0), "record_every must be"),
+        ("legs", dict(check_every=-5), "check_every must be"),
+        ("legs", dict(seed=-1), "seed must be"),
+        ("legs", dict(rollout_offset=-1), "rollout_offset must be"),
+        ("legs", dict(batch_size=0), "batch_size must be"),
+        ("legs", dict(object_ids=[1, 2]), "object_ids has 2 entries"),
+        ("legs", dict(trials=[2]), "trial 2 out of range"),
+        ("legs", dict(trials=[]), "trials is empty"),
+        ("legs", dict(devices=[]), "devices is empty"),
+    ],
+)
+def test_invalid_configuration_is_refused_before_computing(
+    monkeypatch, method, kwargs, match
+):
+    def boom(*a, **k):
+        raise AssertionError("computation started")
+
+    monkeypatch.setattr(engine, "compiled", boom)
+    monkeypatch.setattr(engine, "make_tables", boom)
+    args = dict(object_ids=[1], num_rollouts=1, horizon=10)
+    args.update(kwargs)
+    with pytest.raises(ConfigError, match=match):
+        engine.run(_SMALL, method, **args)
+
+
+def test_invalid_batch_is_refused():
+    with pytest.raises(ConfigError, match="ProblemBatch"):
+        engine.run(make_problem(0), "legs", object_ids=[1])
+    assert issubclass(ConfigError, ValueError)
