@@ -1,0 +1,671 @@
+"""Speed benchmark: exact Beta sampling and rollout throughput, side by side.
+
+    python -m legs_jax.bench            # the full table (several minutes)
+    python -m legs_jax.bench --quick    # a smaller, faster run
+    python -m legs_jax.bench --json     # one JSON object on stdout instead
+
+Everything is measured in one run on this machine, after a warm-up, as the median
+of several repeats; compile time is reported apart.
+
+- Exact Beta samples per second: this project's sampler
+  (:func:`legs_jax.sampling.beta_rows`), ``jax.random.beta`` and NumPy's
+  ``Generator.beta``, on the same posterior-like shapes.
+- Rollout steps per second of BORGES (K=2000), LEGS (k=100) and TQL: the JAX engine
+  (:func:`legs_jax.engine.run`) against the NumPy reference implementation
+  (:mod:`legs_jax.reference`) of the same method with the same settings, and the
+  ratio.
+- The projected wall time of ``python -m legs_jax.sweep --all`` from those rates.
+- The raw figures behind the physical limits: random words per second, words per
+  exact Beta draw, memory bandwidth.
+
+Like the sweep, the benchmark gives the JAX engine one host device per core (an
+``--xla_force_host_platform_device_count`` already in ``XLA_FLAGS`` wins).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import statistics
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+# Methods of the table; the others get a rate in the full run (for the
+# projection) or borrow the rate of a method with the same per-step work.
+TABLE_METHODS = ("borges_2000", "legs", "tql")
+ALL_METHODS = (
+    "dexnet",
+    "k100_ub",
+    "borges_100",
+    "borges_2000",
+    "legs_no_as",
+    "legs",
+    "tql",
+)
+PROXY = {
+    "dexnet": "tql",
+    "k100_ub": "tql",
+    "borges_100": "legs",
+    "legs_no_as": "borges_2000",
+}
+# Methods whose per-step work is dense over all K grasps (small batches suit them).
+DENSE = ("borges_2000", "legs_no_as")
+# Object sets of SPEC §6 (used when the mesh catalogue is not installed).
+SET_SIZES = {"dexnet_adv": 13, "egad_eval": 49}
+MAX_HOST_DEVICES = 8
+
+
+@dataclass(frozen=True)
+class Settings:
+    quick: bool
+    repeats: int
+    min_seconds: float  # shortest timed stretch of one sampler repeat
+    sampler_rows: int
+    sampler_arms: int
+    poses: int
+    grasps: int
+    trials: int
+    horizon: int
+    rollouts_dense: int  # rollouts of a JAX run of a dense method
+    rollouts_sparse: int  # of the other methods
+    reference_horizon: int
+    reference_seconds: float  # shortest timed stretch of one reference repeat
+    methods: tuple[str, ...]
+    numpy_all_cores: bool
+
+
+def _with_table(methods: Sequence[str]) -> tuple[str, ...]:
+    """The table's methods always run (the projection borrows their rates)."""
+    return tuple(m for m in ALL_METHODS if m in methods or m in TABLE_METHODS)
+
+
+def settings(quick: bool, methods: Sequence[str] | None) -> Settings:
+    if quick:
+        return Settings(
+            quick=True,
+            repeats=2,
+            min_seconds=0.2,
+            sampler_rows=16,
+            sampler_arms=2000,
+            poses=4,
+            grasps=2000,
+            trials=2,
+            horizon=100,
+            rollouts_dense=32,
+            rollouts_sparse=256,
+            reference_horizon=100,
+            reference_seconds=0.3,
+            methods=_with_table(methods or TABLE_METHODS),
+            numpy_all_cores=False,
+        )
+    return Settings(
+        quick=False,
+        repeats=3,
+        min_seconds=1.0,
+        sampler_rows=64,
+        sampler_arms=2000,
+        poses=8,
+        grasps=2000,
+        trials=8,
+        horizon=1000,
+        rollouts_dense=128,
+        rollouts_sparse=2048,
+        reference_horizon=1000,
+        reference_seconds=3.0,
+        methods=_with_table(methods or ALL_METHODS),
+        numpy_all_cores=True,
+    )
+
+
+# ----------------------------------------------------------------------- helpers
+
+
+def _set_host_devices() -> None:
+    """One XLA host device per core (at most 8), before JAX starts."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    n = min(os.cpu_count() or 1, MAX_HOST_DEVICES)
+    if n >= 2 and "xla_force_host_platform_device_count" not in flags:
+        os.environ["XLA_FLAGS"] = (
+            flags + f" --xla_force_host_platform_device_count={n}"
+        ).strip()
+
+
+def _say(msg: str, quiet: bool) -> None:
+    if not quiet:
+        print(msg, file=sys.stderr, flush=True)
+
+
+def _timed_rate(
+    fn: Callable[[], Any], work: float, repeats: int, min_seconds: float
+) -> float:
+    """Median over ``repeats`` of work per second; each repeat calls ``fn`` until
+    at least ``min_seconds`` have passed."""
+    rates = []
+    for _ in range(repeats):
+        calls = 0
+        start = time.perf_counter()
+        while True:
+            fn()
+            calls += 1
+            elapsed = time.perf_counter() - start
+            if elapsed >= min_seconds:
+                break
+        rates.append(work * calls / elapsed)
+    return statistics.median(rates)
+
+
+def _cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def _load() -> list[float] | None:
+    try:
+        return [round(x, 2) for x in os.getloadavg()]
+    except OSError:
+        return None
+
+
+# ----------------------------------------------------------------------- sampler
+
+
+def _posterior_shapes(rows: int, arms: int) -> tuple[np.ndarray, np.ndarray]:
+    """Thompson-like Beta shapes: prior 1 + q, 1 + (1 - q), 30 % of arms tried."""
+    rng = np.random.default_rng(0)
+    q = rng.uniform(0.01, 0.99, (rows, arms))
+    tried = rng.uniform(size=(rows, arms)) < 0.3
+    wins = np.where(tried, rng.poisson(2.0, (rows, arms)), 0)
+    losses = np.where(tried, rng.poisson(20.0, (rows, arms)), 0)
+    a = (1.0 + q + wins).astype(np.float32)
+    b = (1.0 + (1.0 - q) + losses).astype(np.float32)
+    return a, b
+
+
+def _sharded(fn, devices):
+    """``fn`` over rows split across ``devices`` (each device its own program)."""
+    import jax
+    from jax.sharding import Mesh, NamedSharding
+    from jax.sharding import PartitionSpec as Pspec
+
+    if len(devices) == 1:
+        jitted = jax.jit(fn)
+
+        def put(*xs):
+            return jax.device_put(xs, devices[0])
+
+        return jitted, put
+    mesh = Mesh(np.array(devices), ("b",))
+    row = Pspec("b")
+    jitted = jax.jit(
+        jax.shard_map(fn, mesh=mesh, in_specs=row, out_specs=row, check_vma=False)
+    )
+
+    def put(*xs):
+        return jax.device_put(xs, NamedSharding(mesh, row))
+
+    return jitted, put
+
+
+def bench_sampler(cfg: Settings, quiet: bool) -> dict[str, Any]:
+    import jax
+    import jax.numpy as jnp
+
+    from legs_jax import sampling
+
+    rows, arms = cfg.sampler_rows, cfg.sampler_arms
+    a, b = _posterior_shapes(rows, arms)
+    keys = jax.random.split(jax.random.key(0), rows)
+    devices = jax.local_devices()
+    n = rows * arms
+    out: dict[str, Any] = {"shape": [rows, arms], "devices": len(devices)}
+
+    def jax_rate(name: str, fn, devs) -> float:
+        jitted, put = _sharded(fn, devs)
+        args = put(keys, jnp.asarray(a), jnp.asarray(b))
+        start = time.perf_counter()
+        jax.block_until_ready(jitted(*args))
+        first = time.perf_counter() - start
+        rate = _timed_rate(
+            lambda: jax.block_until_ready(jitted(*args)),
+            n,
+            cfg.repeats,
+            cfg.min_seconds,
+        )
+        out[f"{name}_compile_s"] = round(max(first - n / rate, 0.0), 2)
+        return rate
+
+    _say("sampler: legs_jax.sampling.beta_rows", quiet)
+    # XLA already spreads one device's large fusions over the cores, so rows split
+    # over devices are not always faster: both are measured, the better one is the
+    # machine's figure.
+    one = jax_rate("sampler_one_device", sampling.beta_rows, devices[:1])
+    out["sampler_samples_per_s_one_device"] = one
+    out["sampler_samples_per_s"] = one
+    out["sampler_compile_s"] = out["sampler_one_device_compile_s"]
+    if len(devices) > 1:
+        split = jax_rate("sampler_all_devices", sampling.beta_rows, devices)
+        out["sampler_samples_per_s_all_devices"] = split
+        out["sampler_samples_per_s"] = max(one, split)
+
+    _say("sampler: jax.random.beta", quiet)
+
+    def jax_beta(k, a_, b_):
+        return jax.vmap(lambda kk, aa, bb: jax.random.beta(kk, aa, bb))(k, a_, b_)
+
+    out["jax_random_beta_samples_per_s"] = jax_rate(
+        "jax_random_beta", jax_beta, devices
+    )
+
+    _say("sampler: numpy Generator.beta", quiet)
+    a64, b64 = a.astype(np.float64), b.astype(np.float64)
+    gen = np.random.default_rng(0)
+    out["numpy_beta_samples_per_s"] = _timed_rate(
+        lambda: gen.beta(a64, b64), n, cfg.repeats, cfg.min_seconds
+    )
+
+    # Random words: the Threefry-2x32 of the sampler, on its own.
+    def words(k, ctr):
+        w0, w1 = sampling.threefry2x32(k[:, 0:1], k[:, 1:2], ctr, jnp.uint32(7))
+        return w0 ^ w1
+
+    ctr = jnp.arange(arms * 8, dtype=jnp.uint32)[None]
+    kd = jax.random.key_data(keys)
+    fn = jax.jit(words)
+    jax.block_until_ready(fn(kd, ctr))
+    out["random_words_per_s_one_device"] = _timed_rate(
+        lambda: jax.block_until_ready(fn(kd, ctr)),
+        2 * rows * arms * 8,
+        cfg.repeats,
+        cfg.min_seconds,
+    )
+    # Marsaglia-Tsang rejections at these shapes: every try costs 2 words, and a
+    # rejected gamma costs the 4 tries of one retry round.
+    ab = jnp.concatenate([jnp.asarray(a), jnp.asarray(b)], axis=1)
+    k0, k1 = sampling.key_words(keys)
+    m = ab.shape[1]
+    d = ab - 1.0 / 3.0
+    w0, w1 = sampling.threefry2x32(
+        k0, k1, jnp.arange(m, dtype=jnp.uint32)[None], jnp.uint32(0)
+    )
+    rejected = float(
+        jnp.mean(sampling._mt_try(d, jax.lax.rsqrt(9 * d), w0, w1, -1.0) < 0)
+    )
+    out["gamma_rejection_rate"] = rejected
+    out["random_words_per_beta"] = 2 * 2 * (1 + 4 * rejected)
+    return out
+
+
+def bench_memory(cfg: Settings) -> dict[str, float]:
+    """Streaming bandwidth: NumPy copy (one core) and a JAX elementwise pass."""
+    import jax
+    import jax.numpy as jnp
+
+    n = (1 << 23) if cfg.quick else (1 << 25)  # 32 MiB or 128 MiB of float32
+    src = np.ones(n, np.float32)
+    dst = np.empty_like(src)
+    out = {
+        "numpy_copy_gb_per_s": _timed_rate(
+            lambda: np.copyto(dst, src), 2 * src.nbytes / 1e9, cfg.repeats, 0.3
+        )
+    }
+    # In place (the input buffer is donated), so no page faults of fresh memory.
+    fn = jax.jit(lambda v: v * 0.5 + 1.0, donate_argnums=0)
+    state = [jax.block_until_ready(fn(jnp.ones(n, jnp.float32)))]
+
+    def step():
+        state[0] = jax.block_until_ready(fn(state[0]))
+
+    out["jax_stream_gb_per_s_one_device"] = _timed_rate(
+        step, 2 * src.nbytes / 1e9, cfg.repeats, 0.3
+    )
+    return out
+
+
+# ----------------------------------------------------------------------- engine
+
+
+def _problem(cfg: Settings):
+    from legs_jax import synthetic
+
+    return synthetic.make_problem(
+        0,
+        num_poses=cfg.poses,
+        num_grasps=cfg.grasps,
+        num_trials=cfg.trials,
+        name="bench",
+    )
+
+
+def bench_jax_engine(method: str, cfg: Settings, problem) -> dict[str, float]:
+    from legs_jax import engine
+    from legs_jax.problem import stack
+
+    batch = stack([problem])
+    total = cfg.rollouts_dense if method in DENSE else cfg.rollouts_sparse
+    per_trial = max(1, total // cfg.trials)
+    steps = cfg.trials * per_trial * cfg.horizon
+
+    def once():
+        engine.run(
+            batch,
+            method,
+            object_ids=[0],
+            num_rollouts=per_trial,
+            horizon=cfg.horizon,
+            progress=False,
+        )
+
+    start = time.perf_counter()
+    once()
+    first = time.perf_counter() - start
+    rate = _timed_rate(once, steps, cfg.repeats, 0.0)
+    return {
+        "jax": rate,
+        "compile_s": round(max(first - steps / rate, 0.0), 2),
+        "rollouts": cfg.trials * per_trial,
+        "horizon": cfg.horizon,
+    }
+
+
+def _reference_rollouts(args) -> int:
+    """Worker: run ``count`` reference rollouts; returns the steps done."""
+    problem, method, horizon, trial, first, count = args
+    from legs_jax import reference
+
+    reference.run(
+        problem,
+        method,
+        trials=[trial],
+        num_rollouts=count,
+        horizon=horizon,
+        seed=first,
+    )
+    return count * horizon
+
+
+def bench_reference(method: str, cfg: Settings, problem) -> float:
+    """NumPy reference steps per second, one process (one rollout at a time)."""
+    from legs_jax import reference
+
+    horizon = cfg.reference_horizon
+    rates = []
+    for rep in range(cfg.repeats):
+        steps = 0
+        start = time.perf_counter()
+        while True:
+            reference.run(
+                problem,
+                method,
+                trials=[rep % cfg.trials],
+                num_rollouts=1,
+                horizon=horizon,
+                seed=steps,
+            )
+            steps += horizon
+            elapsed = time.perf_counter() - start
+            if elapsed >= cfg.reference_seconds:
+                break
+        rates.append(steps / elapsed)
+    return statistics.median(rates)
+
+
+def bench_reference_all_cores(method: str, cfg: Settings, problem, one: float) -> float:
+    """NumPy reference with one worker process per core, rollouts in parallel."""
+    import multiprocessing as mp
+
+    workers = os.cpu_count() or 1
+    horizon = cfg.reference_horizon
+    # Enough rollouts for each worker to run about reference_seconds.
+    per_worker = max(1, math.ceil(cfg.reference_seconds * one / horizon))
+    jobs = [
+        (problem, method, horizon, i % cfg.trials, i, per_worker)
+        for i in range(workers)
+    ]
+    ctx = mp.get_context("spawn")
+    with ctx.Pool(workers) as pool:
+        pool.map(_reference_rollouts, [(problem, method, 10, 0, 0, 1)] * workers)
+        rates = []
+        for _ in range(cfg.repeats):
+            start = time.perf_counter()
+            steps = sum(pool.map(_reference_rollouts, jobs))
+            rates.append(steps / (time.perf_counter() - start))
+    return statistics.median(rates)
+
+
+# ----------------------------------------------------------------------- projection
+
+
+def _count_objects(names: Sequence[str]) -> int:
+    try:
+        from precompute import catalog
+
+        sizes = {s: len(catalog.objects(s)) for s in SET_SIZES}
+    except Exception:  # the catalogue is optional here
+        sizes = dict(SET_SIZES)
+    return sum(sizes.get(n, 1) for n in names)
+
+
+def projection(rates: dict[str, float]) -> dict[str, Any]:
+    """Minutes of ``--all`` from rollout-steps per second of each method.
+
+    Work of an arm = objects x trials x rollouts x horizon x grid points. Every
+    arm is charged the measured rate of its method with the Dirichlet checks on
+    (as the table measures it), which slightly overstates methods whose checks the
+    sweep skips. Compilation and precompute are not included.
+    """
+    import sweeps
+
+    per_exp = {}
+    steps_total = 0.0
+    seconds = 0.0
+    for name in sweeps.EXPERIMENTS:
+        mod = sweeps.get(name)
+        n_obj = _count_objects(mod.OBJECTS)
+        exp_s = 0.0
+        for method, _variant, hp in mod.ARMS:
+            grid = max([len(v) for v in hp.values() if isinstance(v, tuple)] or [1])
+            steps = n_obj * mod.TRIALS * mod.ROLLOUTS * mod.HORIZON * grid
+            rate = rates.get(method) or rates[PROXY[method]]
+            steps_total += steps
+            exp_s += steps / rate
+        per_exp[name] = round(exp_s / 60.0, 2)
+        seconds += exp_s
+    return {
+        "projected_all_minutes": round(seconds / 60.0, 2),
+        "projected_minutes_per_experiment": per_exp,
+        "all_rollout_steps": steps_total,
+    }
+
+
+# ----------------------------------------------------------------------- main
+
+
+def run(cfg: Settings, quiet: bool = False) -> dict[str, Any]:
+    import jax
+
+    result: dict[str, Any] = {
+        "quick": cfg.quick,
+        "machine": {
+            "cpu": _cpu_model(),
+            "cores": os.cpu_count(),
+            "platform": jax.default_backend(),
+            "devices": [str(d) for d in jax.local_devices()],
+            "jax": jax.__version__,
+            "numpy": np.__version__,
+            "python": platform.python_version(),
+            "load_average_start": _load(),
+        },
+    }
+    result.update(bench_sampler(cfg, quiet))
+    result.update(bench_memory(cfg))
+
+    problem = _problem(cfg)
+    steps: dict[str, dict[str, float]] = {}
+    jax_rates: dict[str, float] = {}
+    for method in cfg.methods:
+        _say(f"engine: {method} (JAX)", quiet)
+        row = bench_jax_engine(method, cfg, problem)
+        jax_rates[method] = row["jax"]
+        if method in TABLE_METHODS:
+            _say(f"engine: {method} (NumPy reference)", quiet)
+            row["numpy"] = bench_reference(method, cfg, problem)
+            row["ratio"] = row["jax"] / row["numpy"]
+            if cfg.numpy_all_cores and (os.cpu_count() or 1) > 1:
+                row["numpy_all_cores"] = bench_reference_all_cores(
+                    method, cfg, problem, row["numpy"]
+                )
+                row["ratio_all_cores"] = row["jax"] / row["numpy_all_cores"]
+        steps[method] = row
+    result["steps_per_s"] = steps
+    result["engine_setup"] = {
+        "poses": cfg.poses,
+        "grasps": cfg.grasps,
+        "trials": cfg.trials,
+        "horizon": cfg.horizon,
+        "reference_horizon": cfg.reference_horizon,
+        "check_every": 100,
+    }
+    result.update(projection(jax_rates))
+    result["machine"]["load_average_end"] = _load()
+    return result
+
+
+def _fmt_rate(x: float) -> str:
+    if x >= 1e6:
+        return f"{x / 1e6:.1f} M"
+    if x >= 1e3:
+        return f"{x / 1e3:.1f} k"
+    return f"{x:.0f}"
+
+
+def format_table(r: dict[str, Any]) -> str:
+    m = r["machine"]
+    lines = [
+        f"machine: {m['cpu']}, {m['cores']} cores, JAX {m['jax']} on "
+        f"{m['platform']} ({len(m['devices'])} devices), load average "
+        f"{m['load_average_start']} -> {m['load_average_end']}",
+        "",
+        f"Exact Beta samples per second (shape {r['shape'][0]} x {r['shape'][1]}, "
+        "posterior-like shapes)",
+        f"  legs_jax.sampling.beta_rows  {_fmt_rate(r['sampler_samples_per_s']):>9}/s"
+        f"   (compile {r['sampler_compile_s']} s)",
+    ]
+    for key, label in (("one_device", "one device"), ("all_devices", "all devices")):
+        if f"sampler_samples_per_s_{key}" in r:
+            lines.append(
+                f"    {label + ' (rows split)' * (key == 'all_devices'):<27}"
+                f"{_fmt_rate(r[f'sampler_samples_per_s_{key}']):>9}/s"
+            )
+    lines += [
+        f"  jax.random.beta              "
+        f"{_fmt_rate(r['jax_random_beta_samples_per_s']):>9}/s"
+        f"   (compile {r['jax_random_beta_compile_s']} s)",
+        f"  numpy Generator.beta, 1 core "
+        f"{_fmt_rate(r['numpy_beta_samples_per_s']):>9}/s",
+    ]
+    lines += [
+        f"  random words (Threefry-2x32, one device) "
+        f"{_fmt_rate(r['random_words_per_s_one_device'])}/s; "
+        f"{r['random_words_per_beta']:.2f} words per Beta draw "
+        f"(gamma rejection rate {r['gamma_rejection_rate']:.4f})",
+        f"  memory: NumPy copy {r['numpy_copy_gb_per_s']:.1f} GB/s (one core), "
+        f"JAX stream {r['jax_stream_gb_per_s_one_device']:.1f} GB/s (one device)",
+        "",
+    ]
+    e = r["engine_setup"]
+    lines.append(
+        f"Rollout steps per second (synthetic problem: P={e['poses']}, "
+        f"K={e['grasps']}, H={e['horizon']} (reference H={e['reference_horizon']}), "
+        f"Dirichlet check every {e['check_every']} steps)"
+    )
+    header = (
+        f"  {'method':<12} {'JAX':>9} {'NumPy':>9} {'ratio':>7}"
+        f" {'NumPy all cores':>16} {'ratio':>7} {'compile':>8}"
+    )
+    lines.append(header)
+    for method, row in r["steps_per_s"].items():
+        np_ = _fmt_rate(row["numpy"]) if "numpy" in row else "-"
+        ratio = f"{row['ratio']:.1f}x" if "ratio" in row else "-"
+        npa = _fmt_rate(row["numpy_all_cores"]) if "numpy_all_cores" in row else "-"
+        ra = f"{row['ratio_all_cores']:.1f}x" if "ratio_all_cores" in row else "-"
+        lines.append(
+            f"  {method:<12} {_fmt_rate(row['jax']):>9} {np_:>9} {ratio:>7}"
+            f" {npa:>16} {ra:>7} {row['compile_s']:>7}s"
+        )
+    lines += [
+        "",
+        f"Projected wall time of `python -m legs_jax.sweep --all`: "
+        f"{r['projected_all_minutes']:.1f} min "
+        f"({r['all_rollout_steps']:.3g} rollout-steps; compilation and precompute "
+        "not included)",
+    ]
+    for name, minutes in r["projected_minutes_per_experiment"].items():
+        lines.append(f"  {name:<16} {minutes:8.1f} min")
+    return "\n".join(lines)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="python -m legs_jax.bench",
+        description=(
+            "Measure exact Beta samples/s (legs_jax vs jax.random.beta vs NumPy), "
+            "rollout steps/s of the JAX engine vs the NumPy reference, and project "
+            "the wall time of the full sweep (python -m legs_jax.sweep --all)."
+        ),
+    )
+    p.add_argument(
+        "--json", action="store_true", help="print one JSON object instead of a table"
+    )
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="smaller problem and fewer repeats, table methods only (about a minute)",
+    )
+    p.add_argument(
+        "--methods",
+        nargs="+",
+        choices=ALL_METHODS,
+        metavar="METHOD",
+        help="methods to time besides the table's three (default: none with "
+        "--quick, all seven otherwise); a method not timed is projected at the rate "
+        "of one with the same per-step work",
+    )
+    p.add_argument(
+        "--quiet", action="store_true", help="no progress messages on stderr"
+    )
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    cfg = settings(args.quick, args.methods)
+    _set_host_devices()
+    quiet = args.quiet or args.json
+    try:
+        result = run(cfg, quiet=quiet)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    if args.json:
+        print(json.dumps(result, indent=1, sort_keys=True))
+    else:
+        print(format_table(result))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
