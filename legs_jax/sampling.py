@@ -181,7 +181,9 @@ def _pending_slots(pending: jax.Array, capacity: int) -> jax.Array:
     """Indices of the first ``capacity`` True entries of ``pending``.
 
     [M] bool -> [capacity] int32, padded with ``M``. The mask is packed into 32-bit
-    words, so the prefix sum runs over M / 32 entries.
+    words, so the prefix sum runs over M / 32 entries; each non-empty word marks the
+    first slot it fills and a running max over the slots names the word of every
+    slot; the rank within the word gives the bit.
     """
     (m,) = pending.shape
     nw = -(-m // 32)
@@ -189,23 +191,38 @@ def _pending_slots(pending: jax.Array, capacity: int) -> jax.Array:
     bits = padded.reshape(nw, 32).astype(jnp.uint32) << jnp.arange(32, dtype=jnp.uint32)
     words = jnp.sum(bits, axis=1, dtype=jnp.uint32)  # [nw]
     counts = jax.lax.population_count(words).astype(jnp.int32)
-    cum = jnp.cumsum(counts)  # inclusive
+    before = jnp.cumsum(counts) - counts  # exclusive prefix sum
+    start = jnp.where(counts > 0, before, capacity)
+    marks = jnp.full((capacity,), -1, jnp.int32)
+    marks = marks.at[start].max(jnp.arange(nw, dtype=jnp.int32), mode="drop")
+    block = jax.lax.cummax(marks)
     slot = jnp.arange(capacity, dtype=jnp.int32)
-    block = jnp.searchsorted(cum, slot, side="right")
-    valid = block < nw
-    block = jnp.minimum(block, nw - 1)
-    before = (cum - counts)[block]
-    pos = block * 32 + _select_bit(words[block], slot - before)
+    valid = (slot < before[-1] + counts[-1]) & (block >= 0)
+    block = jnp.maximum(block, 0)
+    pos = block * 32 + _select_bit(words[block], slot - before[block])
     return jnp.where(valid, pos, m)
 
 
-def _gamma_ge1(k0, k1, a, ctr0, ctr1, tries_per_round=4, capacity=None):
-    """Gamma(a) draws for a >= 1 ([B, M] float32) with per-element counters.
+def _plain_counters(stream: int):
+    """Counters of element j: (j, stream << 24) (try t adds t to the second)."""
 
-    ``ctr0`` and ``ctr1`` ([M] uint32) are the counter words of each element's first
-    try; try t uses ``ctr1 + t``. Every element takes the first accepted try of its
-    own sequence 0, 1, 2, ..., whatever the batch holds, so the values do not
-    depend on which rejected elements share a retry round.
+    def counters(col):
+        col = col.astype(jnp.uint32)
+        return col, jnp.full(col.shape, stream << _STREAM_SHIFT, jnp.uint32)
+
+    return counters
+
+
+def _gamma_ge1(k0, k1, a, counters, tries_per_round=4, capacity=None):
+    """Gamma(a) draws for a >= 1 ([B, M] float32).
+
+    ``counters(j)`` maps element indices j (int32 array) to the two uint32 counter
+    words of their first try; try t adds t to the second word. Every element takes
+    the first accepted try of its own sequence 0, 1, 2, ..., whatever the batch
+    holds, so the values do not depend on which rejected elements share a retry
+    round. The first try of every element runs in bulk; the rejected ones (0.3-3 %)
+    are packed into a buffer of ``capacity`` slots and retried there,
+    ``tries_per_round`` tries at a time, until none is left.
 
     A pending element holds minus the number of tries it has used, so the state of
     the retry loop is the one output array.
@@ -213,14 +230,16 @@ def _gamma_ge1(k0, k1, a, ctr0, ctr1, tries_per_round=4, capacity=None):
     rows, m = a.shape
     d = a - jnp.float32(1.0 / 3.0)
     c = jax.lax.rsqrt(9.0 * d)
-    w0, w1 = threefry2x32(k0, k1, ctr0[None], ctr1[None])
+    c0, c1 = counters(jnp.arange(m, dtype=jnp.int32))
+    w0, w1 = threefry2x32(k0, k1, c0[None], c1[None])
     g = _mt_try(d, c, w0, w1, jnp.float32(-1.0)).reshape(-1)
     total = rows * m
     if capacity is None:
-        capacity = total // 32 + 32
+        # A multiple of 64: XLA's CPU loops run scalar over odd lengths.
+        capacity = -(-(total // 32 + 32) // 64) * 64
     # At least 2 slots: XLA compiles one-element arrays differently, and the last
     # bit of a value must not depend on the buffer it went through.
-    capacity = max(2, min(total, capacity))
+    capacity = max(2, capacity)
     a_flat = a.reshape(-1)
     k0, k1 = k0.reshape(-1), k1.reshape(-1)
 
@@ -230,15 +249,18 @@ def _gamma_ge1(k0, k1, a, ctr0, ctr1, tries_per_round=4, capacity=None):
     def body(g):
         idx = _pending_slots(g < 0.0, capacity)  # [C], total where unused
         idx_c = jnp.minimum(idx, total - 1)
-        row, col = idx_c // m, idx_c % m
+        row = idx_c // m
         ds = a_flat[idx_c] - jnp.float32(1.0 / 3.0)
         cs = jax.lax.rsqrt(9.0 * ds)
-        r0, r1, c0 = k0[row], k1[row], ctr0[col]
+        r0, r1 = k0[row], k1[row]
         tried = -g[idx_c]
-        first = ctr1[col] + tried.astype(jnp.uint32)
+        c0, c1 = counters(idx_c - row * m)
+        c1 = c1 + tried.astype(jnp.uint32)
+        # The tries run inside a loop of their own: fused into the scatter below,
+        # they would be emitted over its [C, 1] updates, a scalar loop.
 
         def one_try(t, gs):
-            v0, v1 = threefry2x32(r0, r1, c0, first + t.astype(jnp.uint32))
+            v0, v1 = threefry2x32(r0, r1, c0, c1 + t.astype(jnp.uint32))
             gt = _mt_try(ds, cs, v0, v1, jnp.float32(-1.0))
             return jnp.where(gs < 0.0, gt, gs)
 
@@ -272,10 +294,10 @@ def gamma_rows(keys: jax.Array, a: jax.Array) -> jax.Array:
     k0, k1 = key_words(keys)
     a = jnp.asarray(a, jnp.float32)
     m = a.shape[1]
-    ctr0 = jnp.arange(m, dtype=jnp.uint32)
-    ctr1 = jnp.full((m,), _STREAM_GAMMA_A << _STREAM_SHIFT, jnp.uint32)
     small = a < 1.0
-    g = _gamma_ge1(k0, k1, jnp.where(small, a + 1.0, a), ctr0, ctr1)
+    g = _gamma_ge1(
+        k0, k1, jnp.where(small, a + 1.0, a), _plain_counters(_STREAM_GAMMA_A)
+    )
 
     def boost(g):
         bits = _counter_words(k0, k1, 2 * m, _STREAM_BOOST)[:, 0::2]
@@ -299,16 +321,16 @@ def beta_rows(keys: jax.Array, a: jax.Array, b: jax.Array) -> jax.Array:
     a, b = jnp.broadcast_arrays(a, b)
     n = a.shape[1]
     ab = jnp.concatenate([a, b], axis=1)  # [B, 2N]
-    index = jnp.arange(n, dtype=jnp.uint32)
-    ctr0 = jnp.concatenate([index, index])
-    ctr1 = jnp.concatenate(
-        [
-            jnp.full((n,), _STREAM_GAMMA_A << _STREAM_SHIFT, jnp.uint32),
-            jnp.full((n,), _STREAM_GAMMA_B << _STREAM_SHIFT, jnp.uint32),
-        ]
-    )
+
+    def counters(col):
+        # Gamma of a_i: (i, stream A); of b_i: (i, stream B).
+        is_b = col >= n
+        c0 = (col - jnp.where(is_b, n, 0)).astype(jnp.uint32)
+        stream = jnp.where(is_b, _STREAM_GAMMA_B, _STREAM_GAMMA_A)
+        return c0, stream.astype(jnp.uint32) << jnp.uint32(_STREAM_SHIFT)
+
     small = ab < 1.0
-    g = _gamma_ge1(k0, k1, jnp.where(small, ab + 1.0, ab), ctr0, ctr1)
+    g = _gamma_ge1(k0, k1, jnp.where(small, ab + 1.0, ab), counters)
     ga, gb = g[:, :n], g[:, n:]
     x = ga / (ga + gb)
 
@@ -704,9 +726,7 @@ def dirichlet_lower_bound(
     )  # [B, P+1], all >= 1
     m = num_samples * bins
     shapes = jnp.broadcast_to(alpha[:, None, :], (rows, num_samples, bins))
-    ctr0 = jnp.arange(m, dtype=jnp.uint32)
-    ctr1 = jnp.full((m,), _STREAM_GAMMA_A << _STREAM_SHIFT, jnp.uint32)
-    g = _gamma_ge1(k0, k1, shapes.reshape(rows, m), ctr0, ctr1)
+    g = _gamma_ge1(k0, k1, shapes.reshape(rows, m), _plain_counters(_STREAM_GAMMA_A))
     g = g.reshape(rows, num_samples, bins)
     keep = jnp.concatenate([observed, jnp.ones((rows, 1), bool)], axis=1)
     g = jnp.where(keep[:, None, :], g, 0.0)

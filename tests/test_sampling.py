@@ -120,13 +120,12 @@ def test_retry_schedule_does_not_change_values():
     the retry buffer (down to 1, forcing dozens of retry rounds) changes nothing."""
     k0, k1 = sampling.key_words(_keys(5, 3))
     a = jnp.full((3, 400), 1.0)  # the highest rejection rate, about 2.7 %
-    ctr0 = jnp.arange(400, dtype=jnp.uint32)
-    ctr1 = jnp.zeros(400, jnp.uint32)
+    counters = sampling._plain_counters(0)
 
     def draw(capacity):
         fn = jax.jit(
             lambda k0, k1, a: sampling._gamma_ge1(
-                k0, k1, a, ctr0, ctr1, capacity=capacity
+                k0, k1, a, counters, capacity=capacity
             )
         )
         return np.asarray(fn(k0, k1, a))
