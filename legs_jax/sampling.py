@@ -214,7 +214,9 @@ def _plain_counters(stream: int):
 
 
 def _gamma_ge1(k0, k1, a, counters, tries_per_round=4, capacity=None):
-    """Gamma(a) draws for a >= 1 ([B, M] float32).
+    """Gamma(a') draws ([B, M] float32) for a' = a + 1 where a < 1, else a.
+
+    (Callers boost the draws of shapes below 1 afterwards.)
 
     ``counters(j)`` maps element indices j (int32 array) to the two uint32 counter
     words of their first try; try t adds t to the second word. Every element takes
@@ -228,7 +230,11 @@ def _gamma_ge1(k0, k1, a, counters, tries_per_round=4, capacity=None):
     the retry loop is the one output array.
     """
     rows, m = a.shape
-    d = a - jnp.float32(1.0 / 3.0)
+
+    def shape_d(a):
+        return jnp.where(a < 1.0, a + 1.0, a) - jnp.float32(1.0 / 3.0)
+
+    d = shape_d(a)
     c = jax.lax.rsqrt(9.0 * d)
     c0, c1 = counters(jnp.arange(m, dtype=jnp.int32))
     w0, w1 = threefry2x32(k0, k1, c0[None], c1[None])
@@ -241,7 +247,7 @@ def _gamma_ge1(k0, k1, a, counters, tries_per_round=4, capacity=None):
     # bit of a value must not depend on the buffer it went through.
     capacity = max(2, capacity)
     a_flat = a.reshape(-1)
-    k0, k1 = k0.reshape(-1), k1.reshape(-1)
+    key_pairs = jnp.concatenate([k0, k1], axis=1)  # [B, 2]
 
     def cond(g):
         return jnp.any(g < 0.0)
@@ -250,9 +256,10 @@ def _gamma_ge1(k0, k1, a, counters, tries_per_round=4, capacity=None):
         idx = _pending_slots(g < 0.0, capacity)  # [C], total where unused
         idx_c = jnp.minimum(idx, total - 1)
         row = idx_c // m
-        ds = a_flat[idx_c] - jnp.float32(1.0 / 3.0)
+        ds = shape_d(a_flat[idx_c])
         cs = jax.lax.rsqrt(9.0 * ds)
-        r0, r1 = k0[row], k1[row]
+        kp = key_pairs[row]  # one gather for both words
+        r0, r1 = kp[:, 0], kp[:, 1]
         tried = -g[idx_c]
         c0, c1 = counters(idx_c - row * m)
         c1 = c1 + tried.astype(jnp.uint32)
@@ -295,9 +302,7 @@ def gamma_rows(keys: jax.Array, a: jax.Array) -> jax.Array:
     a = jnp.asarray(a, jnp.float32)
     m = a.shape[1]
     small = a < 1.0
-    g = _gamma_ge1(
-        k0, k1, jnp.where(small, a + 1.0, a), _plain_counters(_STREAM_GAMMA_A)
-    )
+    g = _gamma_ge1(k0, k1, a, _plain_counters(_STREAM_GAMMA_A))
 
     def boost(g):
         bits = _counter_words(k0, k1, 2 * m, _STREAM_BOOST)[:, 0::2]
@@ -330,7 +335,7 @@ def beta_rows(keys: jax.Array, a: jax.Array, b: jax.Array) -> jax.Array:
         return c0, stream.astype(jnp.uint32) << jnp.uint32(_STREAM_SHIFT)
 
     small = ab < 1.0
-    g = _gamma_ge1(k0, k1, jnp.where(small, ab + 1.0, ab), counters)
+    g = _gamma_ge1(k0, k1, ab, counters)
     ga, gb = g[:, :n], g[:, n:]
     x = ga / (ga + gb)
 
