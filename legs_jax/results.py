@@ -12,6 +12,25 @@ A sweep writes one folder per experiment::
         objects.parquet        one row per object: set, id, poses, problem hash
         chunks/<chunk id>/     the raw tables of each finished chunk
 
+Schemas (hyperparameter columns: s, prior_offset, delta, gamma, epsilon, eta as
+float64; k, n as int64; ``variant`` is "" for the default configuration):
+
+- runs: experiment, set, object, method, variant, trial, rollout, seed,
+  <hyperparameters>, horizon, final_gap, final_performance (float64), successes,
+  distinct_grasps, replacements (int64). One row per run.
+- curves: experiment, set, object, method, variant, <hyperparameters>, step,
+  gap_mean, gap_se, n_runs. Aggregated over the T x R runs of each (object,
+  method, variant, hyperparameters): mean and standard error (sample standard
+  deviation / sqrt(n_runs)) at steps 0, record_every, ..., H. Per-run curves are
+  kept in the ``gap_curve`` column of ``chunks/*/runs.parquet``.
+- checks: experiment, set, object, method, variant, trial, rollout,
+  <hyperparameters>, step, p_lower (p-hat* over all candidates, the paper's bound),
+  p_lower_attempted (over attempted grasps only), true_performance.
+- active_set: object, method, variant, grid_index, trial, rollout, step, pose,
+  slot, grasp, robustness (filled slots of visited poses only).
+- grasps: object, trial, pose, grasp, landing, robustness, prior (trial 0).
+- objects: object, set, object_id, num_poses, num_grasps, problem_file, sha256.
+
 A chunk is written into a temporary folder which is then renamed into place, so a
 chunk folder exists only when complete. The final tables are merged from the chunk
 folders in a fixed order, so they do not depend on how often the sweep was
