@@ -19,6 +19,7 @@ from legs_jax.methods.base import (
     posterior_prior,
     prune_mask,
     thompson_draw,
+    updated_row,
 )
 
 
@@ -57,8 +58,9 @@ def _mask(st: DenseState, ctx: Ctx) -> jax.Array:
 def select(st: DenseState, ctx: Ctx, cfg: Config, s, key):
     a = gather_at(st.alpha, s)
     b = gather_at(st.beta, s)
-    i = thompson_draw(key, a, b, _mask_row(st, ctx, s))
-    return i, i
+    mask = _mask_row(st, ctx, s)
+    i = thompson_draw(key, a, b, mask)
+    return i, i, (a, b, mask)
 
 
 def update(st: DenseState, ctx: Ctx, cfg: Config, s, grasp, slot, reward, live):
@@ -78,6 +80,15 @@ def recommend(st: DenseState, ctx: Ctx, cfg: Config, s):
     a = gather_at(st.alpha, s)
     b = gather_at(st.beta, s)
     mask = _mask_row(st, ctx, s)
+    best = argmax_first(jnp.where(mask, a / (a + b), -jnp.inf))
+    return jnp.where(jnp.any(mask, axis=-1), best, -1)
+
+
+def recommend_updated(rows, ctx: Ctx, cfg: Config, s, slot, reward, live):
+    a, b, mask = rows
+    win = (live & reward).astype(jnp.float32)
+    a = updated_row(a, slot, win)
+    b = updated_row(b, slot, live.astype(jnp.float32) - win)
     best = argmax_first(jnp.where(mask, a / (a + b), -jnp.inf))
     return jnp.where(jnp.any(mask, axis=-1), best, -1)
 

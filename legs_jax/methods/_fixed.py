@@ -66,7 +66,7 @@ def init(ctx: Ctx, cfg: Config, *, which: str) -> FixedState:
 
 def select(st: FixedState, ctx: Ctx, cfg: Config, s, key):
     g = jnp.maximum(gather_at(st.choice, s), 0)
-    return g, g
+    return g, g, None
 
 
 def update(st: FixedState, ctx: Ctx, cfg: Config, s, grasp, slot, reward, live):

@@ -20,6 +20,7 @@ from legs_jax.methods.base import (
     gather_at,
     posterior_prior,
     prune_mask,
+    updated_row,
 )
 
 
@@ -54,7 +55,7 @@ def select(st: SlotState, ctx: Ctx, cfg: Config, s, key):
     phi = sampling.beta_rows(key, jnp.where(mask, a, 1.0), jnp.where(mask, b, 1.0))
     grasp = argmin_id_of_max(phi, mask, gid, none=0)  # ties: lowest grasp id
     slot = jnp.argmax(gid == grasp[:, None], axis=-1).astype(jnp.int32)
-    return grasp, slot
+    return grasp, slot, (a, b, gid)
 
 
 def update(st: SlotState, ctx: Ctx, cfg: Config, s, grasp, slot, reward, live):
@@ -74,6 +75,14 @@ def recommend(st: SlotState, ctx: Ctx, cfg: Config, s):
     a = gather_at(st.alpha, s)
     b = gather_at(st.beta, s)
     gid = gather_at(st.gid, s)
+    return argmin_id_of_max(a / (a + b), gid >= 0, gid)
+
+
+def recommend_updated(rows, ctx: Ctx, cfg: Config, s, slot, reward, live):
+    a, b, gid = rows
+    win = (live & reward).astype(jnp.float32)
+    a = updated_row(a, slot, win)
+    b = updated_row(b, slot, live.astype(jnp.float32) - win)
     return argmin_id_of_max(a / (a + b), gid >= 0, gid)
 
 

@@ -36,6 +36,7 @@ __all__ = [
     "posterior_prior",
     "prune_mask",
     "thompson_draw",
+    "updated_row",
 ]
 
 Q_CLIP = (0.01, 0.99)  # q is clipped to this range inside the Beta parameters
@@ -98,10 +99,12 @@ class Method:
     :class:`Ctx` and the static :class:`Config`; ``s`` is the current pose [B].
 
     - ``init(ctx, cfg) -> state``.
-    - ``select(state, ctx, cfg, s, key) -> (grasp, slot)``: the grasp id [B] to
-      execute at pose s and the method's own index of it [B] (the slot for
-      active-set methods, else the grasp id). ``key`` [B] is consumed. Only called
-      where pose s has a valid grasp (elsewhere the result is ignored).
+    - ``select(state, ctx, cfg, s, key) -> (grasp, slot, rows)``: the grasp id [B]
+      to execute at pose s, the method's own index of it [B] (the slot for
+      active-set methods, else the grasp id), and the rows of pose s it gathered
+      (any pytree, or None) for ``recommend_updated``. ``key`` [B] is consumed.
+      Only called where pose s has a valid grasp (elsewhere the result is
+      ignored).
     - ``update(state, ctx, cfg, s, grasp, slot, reward, live) -> (state, new)``:
       learn from the outcome [B] bool; rows with ``live`` False must not change.
       ``new`` [B] bool: the (pose, grasp) had never been attempted.
@@ -110,6 +113,9 @@ class Method:
       ``removed`` [B] i32 counts the grasps taken out.
     - ``recommend(state, ctx, cfg, s) -> [B]``: π_t(s) for the pose just updated
       (a visited pose), a grasp id.
+    - ``recommend_updated`` (or None) ``(rows, ctx, cfg, s, slot, reward, live)
+      -> [B]``: the same as ``recommend`` after ``update`` (without pruning),
+      computed from the rows ``select`` gathered, so the step reads the state once.
     - ``recommend_init(state, ctx, cfg) -> [B, P]``: π_0 for every pose (no data).
     - ``estimates(state, ctx, cfg) -> ([B, P], [B, P])``: p̂*_s over all candidates
       and over the attempted candidates only (0 where there are none).
@@ -122,7 +128,7 @@ class Method:
     name: str
     description: str
     init: Callable[..., Any]
-    select: Callable[..., tuple[jax.Array, jax.Array]]
+    select: Callable[..., tuple[jax.Array, jax.Array, Any]]
     update: Callable[..., tuple[Any, jax.Array]]
     recommend: Callable[..., jax.Array]
     recommend_init: Callable[..., jax.Array]
@@ -130,6 +136,7 @@ class Method:
     candidates: Callable[..., jax.Array]
     prune: Callable[..., tuple[Any, jax.Array]] | None = None
     active_set: Callable[..., jax.Array] | None = None
+    recommend_updated: Callable[..., jax.Array] | None = None
     learns: bool = True  # False for the constant rows (Dex-Net, K100 UB)
 
 
@@ -175,6 +182,12 @@ def gather_at(x: jax.Array, s: jax.Array, j: jax.Array | None = None) -> jax.Arr
     """Per-row gather from state: ``x[b, s[b]]`` (or ``x[b, s[b], j[b]]``)."""
     b = jnp.arange(x.shape[0])
     return x[b, s] if j is None else x[b, s, j]
+
+
+def updated_row(row: jax.Array, slot: jax.Array, delta: jax.Array) -> jax.Array:
+    """``row`` [B, N] with ``delta`` [B] added at column ``slot`` [B] of each row."""
+    hit = jax.lax.broadcasted_iota(jnp.int32, row.shape, 1) == slot[:, None]
+    return row + jnp.where(hit, delta[:, None], 0.0)
 
 
 def _col(v: jax.Array, ndim: int) -> jax.Array:

@@ -10,6 +10,7 @@ METHOD = Method(
     select=_dense.select,
     update=_dense.update,
     recommend=_dense.recommend,
+    recommend_updated=_dense.recommend_updated,
     recommend_init=_dense.recommend_init,
     estimates=_dense.estimates,
     candidates=_dense.candidates,

@@ -23,6 +23,7 @@ METHOD = Method(
     select=_slots.select,
     update=_slots.update,
     recommend=_slots.recommend,
+    recommend_updated=_slots.recommend_updated,
     recommend_init=_slots.recommend_init,
     estimates=_slots.estimates,
     candidates=_slots.candidates,

@@ -8,7 +8,14 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from legs_jax.methods.base import Config, Ctx, Method, argmax_first, gather_at
+from legs_jax.methods.base import (
+    Config,
+    Ctx,
+    Method,
+    argmax_first,
+    gather_at,
+    updated_row,
+)
 
 
 class TQLState(NamedTuple):
@@ -29,12 +36,13 @@ def _greedy(Q_row, valid_row):
 def select(st: TQLState, ctx: Ctx, cfg: Config, s, key):
     u = jax.vmap(lambda k: jax.random.uniform(k, (2,)))(key)  # [B, 2]
     valid = ctx.tables.valid[ctx.ot, s]  # [B, K]
-    greedy = jnp.maximum(_greedy(gather_at(st.Q, s), valid), 0)
+    Q_row = gather_at(st.Q, s)
+    greedy = jnp.maximum(_greedy(Q_row, valid), 0)
     nv = ctx.tables.n_valid[ctx.ot, s]
     j = jnp.clip(jnp.floor(u[:, 1] * nv).astype(jnp.int32), 0, jnp.maximum(nv - 1, 0))
     explore = ctx.tables.order[ctx.ot, s, j]  # uniform over the valid grasps
     g = jnp.where(u[:, 0] < ctx.hp.epsilon, explore, greedy)
-    return g, g
+    return g, g, (Q_row, valid)
 
 
 def update(st: TQLState, ctx: Ctx, cfg: Config, s, grasp, slot, reward, live):
@@ -51,6 +59,13 @@ def update(st: TQLState, ctx: Ctx, cfg: Config, s, grasp, slot, reward, live):
 
 def recommend(st: TQLState, ctx: Ctx, cfg: Config, s):
     return _greedy(gather_at(st.Q, s), ctx.tables.valid[ctx.ot, s])
+
+
+def recommend_updated(rows, ctx: Ctx, cfg: Config, s, slot, reward, live):
+    Q_row, valid = rows
+    q = jnp.take_along_axis(Q_row, slot[:, None], axis=1)[:, 0]
+    dq = jnp.where(live, ctx.hp.eta * (reward.astype(jnp.float32) - q), 0.0)
+    return _greedy(updated_row(Q_row, slot, dq), valid)
 
 
 def recommend_init(st: TQLState, ctx: Ctx, cfg: Config):
@@ -77,6 +92,7 @@ METHOD = Method(
     select=select,
     update=update,
     recommend=recommend,
+    recommend_updated=recommend_updated,
     recommend_init=recommend_init,
     estimates=estimates,
     candidates=candidates,
