@@ -74,7 +74,7 @@ def legs_hidden(hidden):
 
 @pytest.fixture(scope="module")
 def borges_hidden(hidden):
-    return engine.run(hidden, "borges_100", batch_size=8, **HIDDEN)
+    return engine.run(hidden, "borges_100", batch_size=8, check_every=None, **HIDDEN)
 
 
 # ------------------------------------------------------------------ behaviour
@@ -84,7 +84,7 @@ def test_legs_escapes_a_bad_top_100(hidden, legs_hidden, borges_hidden):
     """When the top-100 by prior holds no good grasp, BORGES (K=100) cannot do
     better than the K100 upper bound, and LEGS, which refills its active set from
     the rest of the reservoir, ends with a lower gap (the paper, Section 5)."""
-    k100 = engine.run(hidden, "k100_ub", batch_size=8, **HIDDEN)
+    k100 = engine.run(hidden, "k100_ub", batch_size=8, check_every=None, **HIDDEN)
     legs, borges = legs_hidden.final_gap.ravel(), borges_hidden.final_gap.ravel()
     bound = k100.final_gap.ravel()
     assert np.ptp(bound) == 0 and bound[0] > 0.8
@@ -119,8 +119,9 @@ def test_active_set_record(hidden, legs_hidden):
 def test_batch_split_and_offsets_are_bit_identical(hidden, borges_hidden):
     """8 rollouts in one batch, in two batches of 4, and as two runs of 4 joined by
     rollout_offset give bit-identical results."""
-    two = engine.run(hidden, "borges_100", batch_size=4, **HIDDEN)
-    kw = dict(HIDDEN, num_rollouts=4)
+    kw = dict(HIDDEN, check_every=None)
+    two = engine.run(hidden, "borges_100", batch_size=4, **kw)
+    kw = dict(kw, num_rollouts=4)
     a = engine.run(hidden, "borges_100", batch_size=4, **kw)
     b = engine.run(hidden, "borges_100", batch_size=4, rollout_offset=4, **kw)
     for f in engine.RunResult._fields:
@@ -136,7 +137,7 @@ def test_batch_split_and_offsets_are_bit_identical(hidden, borges_hidden):
 def test_grid_is_a_batch_axis_and_compiles_once(hidden):
     """A zipped grid of 2 points equals two separate runs (same random numbers per
     rollout), and new hyperparameter values or seeds do not recompile."""
-    kw = dict(HIDDEN, num_rollouts=4, batch_size=4)
+    kw = dict(HIDDEN, num_rollouts=4, batch_size=4, check_every=None)
     grid = engine.run(hidden, "borges_100", hparams=dict(s=[1.0, 4.0]), **kw)
     before = sum(engine.trace_counts().values())
     one = engine.run(hidden, "borges_100", hparams=dict(s=4.0), **kw)
