@@ -30,8 +30,9 @@ CFG_KN = dict(k=20, n=25)
 RUN = dict(horizon=H, record_every=10, check_every=100, record_active_set=True)
 G, B = 3, 128  # the shared jit(vmap) program: 3 grid points x 128 rollouts
 # Grid points 0 and 1 hold the defaults (256 rollouts for the parity tests);
-# point 2 exercises unusual values.
-ODD = dict(s=3.0, prior_offset=0.5, delta=0.2, gamma=0.5, epsilon=0.5, eta=0.3)
+# point 2 exercises unusual values, among them the original BORGES prior
+# (prior_offset = 0, s = 5: Beta shapes below 1).
+ODD = dict(s=5.0, prior_offset=0.0, delta=0.2, gamma=0.5, epsilon=0.5, eta=0.3)
 
 
 def conformance_problem():

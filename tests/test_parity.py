@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy import stats
-from test_methods import CFG_KN, RUN, conformance_problem, shared_run
+from test_methods import CFG_KN, ODD, RUN, conformance_problem, shared_run
 
 from legs_jax import reference as ref
 from legs_jax import sampling
@@ -149,3 +149,22 @@ def test_dirichlet_bound_in_distribution():
     )
     _welch(got, want, "Dirichlet bound")
     assert stats.ks_2samp(got, want).pvalue > ALPHA
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", LEARNERS)
+def test_parity_unusual_hyperparameters(name):
+    """Grid point 2 of the conformance run (the original BORGES prior,
+    prior_offset = 0 and s = 5, with δ = 0.2, γ = 0.5, ε = 0.5, η = 0.3): 128 engine
+    rollouts against 128 reference rollouts."""
+    e = {k: v[2] for k, v in shared_run(name).items()}
+    r = ref.run(
+        _problem(), name, trials=[0, 1], num_rollouts=64, hparams=dict(CFG_KN, **ODD),
+        seed=1, horizon=RUN["horizon"], record_every=RUN["record_every"],
+        check_every=RUN["check_every"],
+    )  # fmt: skip
+    r = {f: np.asarray(getattr(r, f)).reshape(-1) for f in ("final_gap", "successes",
+         "distinct_grasps", "replacements")}  # fmt: skip
+    assert stats.ks_2samp(e["final_gap"], r["final_gap"]).pvalue > ALPHA
+    for f in ("final_gap", "successes", "distinct_grasps", "replacements"):
+        _welch(e[f], r[f], f)
