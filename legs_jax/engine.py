@@ -584,7 +584,7 @@ def _hparam_grid(
 
 def _default_batch_size(method: str, platform: str, cfg: Config) -> int:
     if platform == "cpu":
-        return 32 if method in _DENSE else 512
+        return 16 if method in _DENSE else 512
     return 2048 if method in _DENSE else 16384
 
 
