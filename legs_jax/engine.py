@@ -697,6 +697,9 @@ def run(
         (else that field is NaN).
       record_active_set: return each pose's active set at each check.
       devices: devices to shard the rollouts over (default: all local devices).
+        On CPU, JAX shows one device unless ``XLA_FLAGS`` holds
+        ``--xla_force_host_platform_device_count=<cores>`` before JAX starts;
+        with it every core runs its own share of the rollouts.
       batch_size: rollouts per device per mini-batch (default: by method and
         platform). Results do not depend on it.
       progress: True for a progress bar over rollouts, False for none, None for a
