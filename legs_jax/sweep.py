@@ -375,6 +375,15 @@ def plan_chunks(
 
 
 # ======================================================================== objects
+def _precompute_errors() -> tuple[type[BaseException], ...]:
+    """The user-error exception of ``precompute``, when it has one."""
+    try:
+        from precompute.errors import PrecomputeError
+    except ImportError:
+        return ()
+    return (PrecomputeError,)
+
+
 def _catalog():
     """The object catalogue of ``precompute``, or None when it is not available."""
     try:
@@ -1434,7 +1443,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not started:
             _say("interrupted before any chunk ran; nothing was written")
         return 130
-    except (SweepError, ConfigError, ProblemFileError) as e:
+    except (SweepError, ConfigError, ProblemFileError, *_precompute_errors()) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
 
