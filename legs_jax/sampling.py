@@ -177,13 +177,32 @@ def _select_bit(word: jax.Array, rank: jax.Array) -> jax.Array:
     return pos
 
 
+def _exclusive_prefix_sum(counts: jax.Array) -> jax.Array:
+    """Exclusive prefix sum of small non-negative int32 counts (1-D).
+
+    Two small matrix products with triangular matrices of ones (exact in float32
+    for totals below 2**24): on CPU much faster than XLA's cumulative sum, which
+    becomes a tree of reduce-windows.
+    """
+    (n,) = counts.shape
+    w = 64
+    r = -(-n // w)
+    c = jnp.pad(counts, (0, r * w - n)).astype(jnp.float32).reshape(r, w)
+    exact = jax.lax.Precision.HIGHEST  # no reduced-precision products (GPUs)
+    within = jnp.matmul(c, jnp.triu(jnp.ones((w, w), jnp.float32), 1), precision=exact)
+    tri = jnp.triu(jnp.ones((r, r), jnp.float32), 1)
+    blocks = jnp.matmul(jnp.sum(c, axis=1), tri, precision=exact)
+    return (within + blocks[:, None]).reshape(-1)[:n].astype(jnp.int32)
+
+
 def _pending_slots(pending: jax.Array, capacity: int) -> jax.Array:
     """Indices of the first ``capacity`` True entries of ``pending``.
 
     [M] bool -> [capacity] int32, padded with ``M``. The mask is packed into 32-bit
-    words, so the prefix sum runs over M / 32 entries; each non-empty word marks the
-    first slot it fills and a running max over the slots names the word of every
-    slot; the rank within the word gives the bit.
+    words; prefix sums run over the M / 32 word counts. The word of slot s is the
+    number of words whose pending entries all come before s, counted with a
+    histogram of the words' ends and a prefix sum over the slots; the rank within
+    the word gives the bit.
     """
     (m,) = pending.shape
     nw = -(-m // 32)
@@ -191,14 +210,12 @@ def _pending_slots(pending: jax.Array, capacity: int) -> jax.Array:
     bits = padded.reshape(nw, 32).astype(jnp.uint32) << jnp.arange(32, dtype=jnp.uint32)
     words = jnp.sum(bits, axis=1, dtype=jnp.uint32)  # [nw]
     counts = jax.lax.population_count(words).astype(jnp.int32)
-    before = jnp.cumsum(counts) - counts  # exclusive prefix sum
-    start = jnp.where(counts > 0, before, capacity)
-    marks = jnp.full((capacity,), -1, jnp.int32)
-    marks = marks.at[start].max(jnp.arange(nw, dtype=jnp.int32), mode="drop")
-    block = jax.lax.cummax(marks)
+    before = _exclusive_prefix_sum(counts)
+    ends = jnp.zeros((capacity + 1,), jnp.int32).at[before + counts].add(1, mode="drop")
+    block = _exclusive_prefix_sum(ends)[1:]  # words ending at or before each slot
     slot = jnp.arange(capacity, dtype=jnp.int32)
-    valid = (slot < before[-1] + counts[-1]) & (block >= 0)
-    block = jnp.maximum(block, 0)
+    valid = slot < before[-1] + counts[-1]
+    block = jnp.minimum(block, nw - 1)  # (only past the last pending entry)
     pos = block * 32 + _select_bit(words[block], slot - before[block])
     return jnp.where(valid, pos, m)
 
