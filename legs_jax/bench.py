@@ -58,6 +58,9 @@ PROXY = {
 }
 # Methods whose per-step work is dense over all K grasps (small batches suit them).
 DENSE = ("borges_2000", "legs_no_as")
+# Dirichlet checks every this many steps for the methods the main sweep checks
+# (sweeps.main.CHECK_METHODS); the others run without, as in the sweep.
+CHECK_EVERY = 100
 # Object sets of SPEC §6 (used when the mesh catalogue is not installed).
 SET_SIZES = {"dexnet_adv": 13, "egad_eval": 49}
 MAX_HOST_DEVICES = 8
@@ -350,6 +353,12 @@ def _problem(cfg: Settings):
     )
 
 
+def _checked(method: str) -> bool:
+    import sweeps
+
+    return method in sweeps.get("main").CHECK_METHODS
+
+
 def bench_jax_engine(method: str, cfg: Settings, problem) -> dict[str, float]:
     from legs_jax import engine
     from legs_jax.problem import stack
@@ -366,6 +375,7 @@ def bench_jax_engine(method: str, cfg: Settings, problem) -> dict[str, float]:
             object_ids=[0],
             num_rollouts=per_trial,
             horizon=cfg.horizon,
+            check_every=CHECK_EVERY if _checked(method) else None,
             progress=False,
         )
 
@@ -393,6 +403,7 @@ def _reference_rollouts(args) -> int:
         num_rollouts=count,
         horizon=horizon,
         seed=first,
+        check_every=CHECK_EVERY if _checked(method) else horizon + 1,
     )
     return count * horizon
 
@@ -414,6 +425,7 @@ def bench_reference(method: str, cfg: Settings, problem) -> float:
                 num_rollouts=1,
                 horizon=horizon,
                 seed=steps,
+                check_every=CHECK_EVERY if _checked(method) else horizon + 1,
             )
             steps += horizon
             elapsed = time.perf_counter() - start
@@ -462,10 +474,10 @@ def _count_objects(names: Sequence[str]) -> int:
 def projection(rates: dict[str, float]) -> dict[str, Any]:
     """Minutes of ``--all`` from rollout-steps per second of each method.
 
-    Work of an arm = objects x trials x rollouts x horizon x grid points. Every
-    arm is charged the measured rate of its method with the Dirichlet checks on
-    (as the table measures it), which slightly overstates methods whose checks the
-    sweep skips. Compilation and precompute are not included.
+    Work of an arm = objects x trials x rollouts x horizon x grid points, charged
+    at the measured rate of its method (with the Dirichlet checks where the main
+    sweep records them, as the table measures it). Compilation and precompute are
+    not included.
     """
     import sweeps
 
@@ -537,7 +549,8 @@ def run(cfg: Settings, quiet: bool = False) -> dict[str, Any]:
         "trials": cfg.trials,
         "horizon": cfg.horizon,
         "reference_horizon": cfg.reference_horizon,
-        "check_every": 100,
+        "check_every": CHECK_EVERY,
+        "checked_methods": [m for m in cfg.methods if _checked(m)],
     }
     result.update(projection(jax_rates))
     result["machine"]["load_average_end"] = _load()
@@ -589,15 +602,18 @@ def format_table(r: dict[str, Any]) -> str:
     e = r["engine_setup"]
     lines.append(
         f"Rollout steps per second (synthetic problem: P={e['poses']}, "
-        f"K={e['grasps']}, H={e['horizon']} (reference H={e['reference_horizon']}), "
-        f"Dirichlet check every {e['check_every']} steps)"
+        f"K={e['grasps']}, H={e['horizon']} (reference H={e['reference_horizon']}); "
+        f"Dirichlet check every {e['check_every']} steps for "
+        f"{', '.join(e['checked_methods']) or 'none'}, as in the main sweep)"
     )
     header = (
         f"  {'method':<12} {'JAX':>9} {'NumPy':>9} {'ratio':>7}"
         f" {'NumPy all cores':>16} {'ratio':>7} {'compile':>8}"
     )
     lines.append(header)
-    for method, row in r["steps_per_s"].items():
+    rows = r["steps_per_s"]
+    for method in sorted(rows, key=lambda m: (m not in TABLE_METHODS, m)):
+        row = rows[method]
         np_ = _fmt_rate(row["numpy"]) if "numpy" in row else "-"
         ratio = f"{row['ratio']:.1f}x" if "ratio" in row else "-"
         npa = _fmt_rate(row["numpy_all_cores"]) if "numpy_all_cores" in row else "-"
