@@ -52,6 +52,8 @@ _STREAM_GAMMA_A = 0
 _STREAM_GAMMA_B = 1
 _STREAM_BOOST = 2
 _STREAM_UNIFORM = 3
+_STREAM_PAIR = 4  # Box-Muller words of try 0 of a Beta draw's two gammas
+_STREAM_ACCEPT = 5  # acceptance words of that try 0
 _STREAM_SHIFT = 24
 
 # Shapes below this are treated as this (Beta(a, b) with a -> 0 tends to a point
@@ -328,8 +330,97 @@ def gamma_rows(keys: jax.Array, a: jax.Array) -> jax.Array:
     return jax.lax.cond(jnp.any(small), boost, lambda g: g, g)
 
 
+def _sincos_2pi(t: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """(sin 2 pi t, cos 2 pi t) for t in [0, 1): Taylor polynomials on a quadrant
+    (error below 1e-7), cheaper than the general ``sin``/``cos``."""
+    x4 = t * 4.0
+    q = jnp.floor(x4)
+    f = (x4 - q) * jnp.float32(math.pi / 2)  # [0, pi / 2)
+    f2 = f * f
+    s = f * (
+        1.0
+        + f2
+        * (
+            -1 / 6
+            + f2 * (1 / 120 + f2 * (-1 / 5040 + f2 * (1 / 362880 - f2 / 39916800)))
+        )
+    )
+    c = 1.0 + f2 * (
+        -0.5
+        + f2
+        * (
+            1 / 24
+            + f2 * (-1 / 720 + f2 * (1 / 40320 + f2 * (-1 / 3628800 + f2 / 479001600)))
+        )
+    )
+    qi = q.astype(jnp.int32)
+    sin = jnp.where(qi == 0, s, jnp.where(qi == 1, c, jnp.where(qi == 2, -s, -c)))
+    cos = jnp.where(qi == 0, c, jnp.where(qi == 1, -s, jnp.where(qi == 2, -c, s)))
+    return sin, cos
+
+
+def _mt_accept(d, c, x, u, rejected):
+    """Marsaglia-Tsang for Gamma(d + 1/3) from a normal x and a uniform u."""
+    w = c * x
+    ok_v = w > -1.0
+    lw = jnp.log1p(jnp.where(ok_v, w, 0.0))
+    thr = 0.5 * x * x + d * (3.0 * (lw - w) - w * w * (3.0 + w))
+    ok = ok_v & (jnp.log(u) < thr)
+    v = (1.0 + w) * (1.0 + w) * (1.0 + w)
+    return jnp.where(ok, d * v, rejected)
+
+
+def _shape_dc(a):
+    """(d, c) of Marsaglia-Tsang for the shape a' = a + 1 (a < 1) or a."""
+    d = jnp.where(a < 1.0, a + 1.0, a) - jnp.float32(1.0 / 3.0)
+    return d, jax.lax.rsqrt(9.0 * d)
+
+
+def _beta_first_tries(k0, k1, i, da, ca, db, cb):
+    """Try 0 of both gammas of Beta element i (negative where rejected).
+
+    The two normals are the Box-Muller pair of one pair of words, the two
+    acceptance uniforms the pair of words of a second counter.
+    """
+    p0, p1 = threefry2x32(k0, k1, i, jnp.uint32(_STREAM_PAIR << _STREAM_SHIFT))
+    q0, q1 = threefry2x32(k0, k1, i, jnp.uint32(_STREAM_ACCEPT << _STREAM_SHIFT))
+    r = jnp.sqrt(-2.0 * jnp.log(_open_unit(p0)))
+    sin, cos = _sincos_2pi(_open_unit(p1))
+    ga = _mt_accept(da, ca, r * cos, _open_unit(q0), jnp.float32(-1.0))
+    gb = _mt_accept(db, cb, r * sin, _open_unit(q1), jnp.float32(-1.0))
+    return ga, gb
+
+
+def _beta_value(k0, k1, i, a, b, ga, gb, boost: bool):
+    """Ga / (Ga + Gb) where both gammas are accepted, else -1; with ``boost``, the
+    draws of shapes below 1 get the boost G(a) = G(a + 1) U^(1/a) (log space)."""
+    x = ga / (ga + gb)
+    if boost:
+        small = (a < 1.0) | (b < 1.0)
+        ua, ub = threefry2x32(k0, k1, i, jnp.uint32(_STREAM_BOOST << _STREAM_SHIFT))
+        la = jnp.log(ga) + jnp.where(
+            a < 1.0, jnp.log(_open_unit(ua)) / jnp.maximum(a, _MIN_SHAPE), 0.0
+        )
+        lb = jnp.log(gb) + jnp.where(
+            b < 1.0, jnp.log(_open_unit(ub)) / jnp.maximum(b, _MIN_SHAPE), 0.0
+        )
+        # Ga / (Ga + Gb) = sigmoid(log Ga - log Gb), finite for any shapes.
+        x = jnp.where(small, jax.nn.sigmoid(la - lb), x)
+    return jnp.where((ga >= 0.0) & (gb >= 0.0), x, jnp.float32(-1.0))
+
+
 def beta_rows(keys: jax.Array, a: jax.Array, b: jax.Array) -> jax.Array:
-    """Exact Beta(a, b) draws, one key per row.
+    """Exact Beta(a, b) draws, one key per row: Ga / (Ga + Gb).
+
+    Element i of a row draws from counters (i, stream | try) under the row's key.
+    Try 0 of the two gammas runs in bulk, with the two normals of one Box-Muller
+    pair (cheaper than two inverse error functions) and the whole draw in one
+    fused pass. The few elements where a gamma was rejected (1-5 %) are packed
+    into a buffer and redrawn there from scratch with more tries per gamma (try
+    t >= 1: its own pair of words, normal from ``erf_inv``), until both gammas
+    have an accepted try; an element always ends with the first accepted try of
+    each gamma, whatever the batch holds. Shapes below 1 use the boost (an extra
+    uniform per gamma), in log space.
 
     Args:
       keys: [B] typed PRNG keys (consumed).
@@ -341,31 +432,68 @@ def beta_rows(keys: jax.Array, a: jax.Array, b: jax.Array) -> jax.Array:
     a = jnp.asarray(a, jnp.float32)
     b = jnp.asarray(b, jnp.float32)
     a, b = jnp.broadcast_arrays(a, b)
-    n = a.shape[1]
-    ab = jnp.concatenate([a, b], axis=1)  # [B, 2N]
+    any_small = jnp.any((a < 1.0) | (b < 1.0))
+    return jax.lax.cond(
+        any_small,
+        lambda: _beta_rows(k0, k1, a, b, boost=True),
+        lambda: _beta_rows(k0, k1, a, b, boost=False),
+    )
 
-    def counters(col):
-        # Gamma of a_i: (i, stream A); of b_i: (i, stream B).
-        is_b = col >= n
-        c0 = (col - jnp.where(is_b, n, 0)).astype(jnp.uint32)
-        stream = jnp.where(is_b, _STREAM_GAMMA_B, _STREAM_GAMMA_A)
-        return c0, stream.astype(jnp.uint32) << jnp.uint32(_STREAM_SHIFT)
 
-    small = ab < 1.0
-    g = _gamma_ge1(k0, k1, ab, counters)
-    ga, gb = g[:, :n], g[:, n:]
-    x = ga / (ga + gb)
+def _beta_rows(k0, k1, a, b, *, boost: bool, tries_per_round=3, capacity=None):
+    rows, n = a.shape
+    total = rows * n
+    da, ca = _shape_dc(a)
+    db, cb = _shape_dc(b)
+    i = jnp.arange(n, dtype=jnp.uint32)[None]
+    ga, gb = _beta_first_tries(k0, k1, i, da, ca, db, cb)
+    x = _beta_value(k0, k1, i, a, b, ga, gb, boost).reshape(-1)
+    if capacity is None:
+        # A multiple of 64: XLA's CPU loops run scalar over odd lengths.
+        capacity = -(-(total // 16 + 32) // 64) * 64
+    capacity = max(2, capacity)
+    a_flat, b_flat = a.reshape(-1), b.reshape(-1)
+    key_pairs = jnp.concatenate([k0, k1], axis=1)  # [B, 2]
 
-    def boost(x):
-        # Ga / (Ga + Gb) = sigmoid(log Ga - log Gb), finite for any shapes. Where
-        # both shapes are >= 1 the draw keeps the bits of the plain ratio.
-        bits = _counter_words(k0, k1, 2 * n, _STREAM_BOOST)
-        bits = jnp.concatenate([bits[:, 0::2], bits[:, 1::2]], axis=1)
-        lg = jnp.where(small, _boosted_log(g, ab, bits), jnp.log(g))
-        ratio = jax.nn.sigmoid(lg[:, :n] - lg[:, n:])
-        return jnp.where(small[:, :n] | small[:, n:], ratio, x)
+    def cond(state):
+        return jnp.any(state[0] < 0.0)
 
-    return jax.lax.cond(jnp.any(small), boost, lambda x: x, x)
+    def body(state):
+        x, rnd = state
+        idx = _pending_slots(x < 0.0, capacity)  # [C], total where unused
+        idx_c = jnp.minimum(idx, total - 1)
+        row = idx_c // n
+        col = (idx_c - row * n).astype(jnp.uint32)
+        kp = key_pairs[row]  # one gather for both words
+        r0, r1 = kp[:, 0], kp[:, 1]
+        sa, sb = a_flat[idx_c], b_flat[idx_c]
+        dsa, csa = _shape_dc(sa)
+        dsb, csb = _shape_dc(sb)
+        g0a, g0b = _beta_first_tries(r0, r1, col, dsa, csa, dsb, csb)
+        # Round r redraws tries 0 .. L - 1 of both gammas, L = 1 + T (r + 1): a
+        # function of the round alone, so an element that waited for a slot
+        # still ends with the first accepted try of each gamma.
+
+        def one_try(t, gs):
+            ga, gb = gs
+            tt = t.astype(jnp.uint32)
+            wa0, wa1 = threefry2x32(
+                r0, r1, col, jnp.uint32(_STREAM_GAMMA_A << _STREAM_SHIFT) + tt
+            )
+            wb0, wb1 = threefry2x32(
+                r0, r1, col, jnp.uint32(_STREAM_GAMMA_B << _STREAM_SHIFT) + tt
+            )
+            ga = jnp.where(ga < 0.0, _mt_try(dsa, csa, wa0, wa1, jnp.float32(-1.0)), ga)
+            gb = jnp.where(gb < 0.0, _mt_try(dsb, csb, wb0, wb1, jnp.float32(-1.0)), gb)
+            return ga, gb
+
+        last = 1 + tries_per_round * (rnd + 1)
+        ga, gb = jax.lax.fori_loop(1, last, one_try, (g0a, g0b))
+        xs = _beta_value(r0, r1, col, sa, sb, ga, gb, boost)
+        return x.at[idx].set(xs, mode="drop"), rnd + 1
+
+    x, _ = jax.lax.while_loop(cond, body, (x, jnp.int32(0)))
+    return x.reshape(rows, n)
 
 
 # --------------------------------------------------------------------------------------

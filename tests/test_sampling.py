@@ -133,6 +133,30 @@ def test_retry_schedule_does_not_change_values():
     np.testing.assert_array_equal(draw(None), draw(1))
 
 
+@pytest.mark.parametrize("boost", [False, True])
+def test_beta_retry_schedule_does_not_change_values(boost):
+    """A Beta element keeps the first accepted try of each of its gammas, so a
+    retry buffer of 2 slots (dozens of rounds, later rounds redrawing more tries)
+    gives the same bits as the default one."""
+    k0, k1 = sampling.key_words(_keys(16, 3))
+    a = np.full((3, 300), 1.0, np.float32)  # the highest rejection rate
+    b = np.full((3, 300), 1.5, np.float32)
+    if boost:
+        a[:, ::7] = 0.3
+
+    def draw(capacity):
+        fn = jax.jit(
+            lambda k0, k1, a, b: sampling._beta_rows(
+                k0, k1, a, b, boost=boost, capacity=capacity
+            )
+        )
+        return np.asarray(fn(k0, k1, a, b))
+
+    default = draw(None)
+    assert np.all((default >= 0) & (default <= 1))
+    np.testing.assert_array_equal(default, draw(2))
+
+
 @pytest.mark.parametrize(
     "total,rate,capacity",
     [
