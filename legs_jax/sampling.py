@@ -11,16 +11,18 @@ How the samplers are built (all plain ``jnp`` ops, so XLA fuses them):
   written out with ``jnp`` integer ops and evaluated on a counter
   ``(element index, stream | try)`` under the row's key. It is bit-identical to
   ``jax.extend.random.threefry_2x32``.
-- Gamma(a), a >= 1: Marsaglia & Tsang (2000). The normal comes from ``erf_inv`` of a
-  24-bit uniform; the acceptance test is written with ``log1p`` so that it does not
-  lose precision for large shapes. Every element gets one try in bulk; the few
-  rejected elements (0.3-2.7 %) are then packed per row into a small buffer and
-  retried there, a few tries at a time, inside a ``lax.while_loop`` until none is
-  left. The tries of an element come from its own counter sequence, and an element
-  keeps its first accepted try, so the result is an exact Gamma draw, independent
-  of every other element and of the rest of the batch.
+- Gamma(a), a >= 1: Marsaglia & Tsang (2000). The acceptance test is written with
+  ``log1p`` so that it does not lose precision for large shapes. Every element gets
+  one try in bulk; the few rejected ones (0.3-3 %) are packed into a small buffer
+  (the pending mask is packed into 32-bit words, prefix sums by small matrix
+  products) and retried there, a few tries at a time, inside a ``lax.while_loop``
+  until none is left. The tries of an element come from its own counter sequence
+  and an element keeps its first accepted try, so the result is an exact Gamma
+  draw, independent of every other element and of the rest of the batch.
 - Gamma(a), 0 < a < 1: the boost G(a) = G(a + 1) * U^(1/a), in log space.
-- Beta(a, b) = G_a / (G_a + G_b).
+- Beta(a, b) = G_a / (G_a + G_b), in one fused pass: try 0 of the two gammas takes
+  its two normals from one Box-Muller pair; elements with a rejected gamma (1-6 %)
+  are redrawn in the buffer, tries t >= 1 with a normal from ``erf_inv``.
 - Beta quantiles: safeguarded Newton-Halley on a float32 regularised incomplete beta
   function whose log prefactor is computed from Stirling's series (accurate for
   shapes in the thousands, where ``lgamma`` in float32 is not).

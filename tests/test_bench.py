@@ -55,7 +55,7 @@ def test_quick_json_has_every_figure(quick_result):
         assert row["ratio"] == pytest.approx(row["jax"] / row["numpy"])
     for key in ("random_words_per_s_one_device", "numpy_copy_gb_per_s"):
         assert _positive(r[key]), key
-    assert 4.0 <= r["random_words_per_beta"] < 5.0
+    assert 4.0 <= r["random_words_per_beta"] < 6.0
     # The human-readable table renders from the same figures.
     table = bench.format_table(r)
     assert "jax.random.beta" in table and "borges_2000" in table
