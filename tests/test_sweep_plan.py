@@ -492,3 +492,19 @@ def test_dry_run_prints_plan(tmp_path, probs, fake_engine, capsys):
     out = capsys.readouterr().out
     assert code == 0 and "prior_strength: 1 object(s)" in out and "180 rollouts" in out
     assert not fake_engine and not (tmp_path / "prior_strength").exists()
+
+
+def test_catalog_names_resolve_in_catalogue_order():
+    catalog = pytest.importorskip("precompute.catalog")
+    got = sweep._resolve_names(["C3", "dexnet_adv", "bar_clamp"], catalog)
+    names = [n for n, _, _ in got]
+    assert names[:13] == [i.name for i in catalog.objects("dexnet_adv")]
+    assert names[13:] == ["C3"] and len(set(names)) == 14
+    assert [oid for _, _, oid in got] == sorted(oid for _, _, oid in got)
+    assert {s for _, s, _ in got} == {"dexnet_adv", "egad_eval"}
+    with pytest.raises(sweep.SweepError, match="did you mean bar_clamp"):
+        sweep._resolve_names(["bar_clam"], catalog)
+    # Every object named by an experiment exists.
+    for name in sweeps.EXPERIMENTS:
+        mod = sweeps.get(name)
+        sweep._resolve_names(list(mod.OBJECTS) + list(mod.SMOKE_OBJECTS), catalog)
