@@ -75,8 +75,8 @@ SMOKE = dict(
 
 # Chunk budgets. Work is counted in candidate-grasp evaluations (about one exact
 # Beta draw each): 8e8 holds the 100 rollouts of 3000 steps over K = 2000 grasps of
-# one object (about 90 s on a 2-core CPU), or several objects of a cheaper method.
-# It bounds what an interruption loses. Memory is the engine's estimated state.
+# one object (15 s on a 2-core CPU), or several objects of a cheaper method. It
+# bounds what an interruption loses. Memory: the chunk's tables and results.
 WORK_BUDGET = 8e8
 MEMORY_BUDGET = 1.5e9
 DIRICHLET_SAMPLES = 3000
