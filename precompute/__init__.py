@@ -1,1 +1,19 @@
-"""precompute."""
+"""precompute: meshes -> problem files (SPEC §1, §6).
+
+``python -m precompute --help`` builds problem files; ``python -m precompute report``
+summarises them. The sweep calls :func:`ensure`, which builds missing or out-of-date
+problem files on demand. NumPy, trimesh and Embree only: no JAX here.
+"""
+
+from . import catalog
+from .build import CODE_VERSION, BuildParams, build_problem, ensure
+from .errors import PrecomputeError
+
+__all__ = [
+    "CODE_VERSION",
+    "BuildParams",
+    "PrecomputeError",
+    "build_problem",
+    "catalog",
+    "ensure",
+]

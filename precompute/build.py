@@ -1,0 +1,348 @@
+"""Mesh -> problem file (SPEC §1, §6), the cache of built problems, and ``ensure``.
+
+Pipeline of one object: load and repair the mesh (:mod:`.mesh`), stable poses and
+landing probabilities, topple matrix (:mod:`.poses`), then per pose: an Embree scene
+of the posed mesh and its height map, T reservoirs of K grasps (:mod:`.grasps`), the
+ground truth p of every grasp from S perturbed executions (all trials of a pose in a
+few large Embree calls), and the synthetic prior q (:mod:`.prior`).
+
+Randomness: every stream is a NumPy ``Generator`` seeded by
+``SeedSequence([seed, object_key, pose, trial, stream])``, with ``object_key`` a
+hash of the object's name and streams 1 (grasp sampling), 2 (perturbations) and
+3 (prior). Nothing depends on the order of work or the number of processes, and
+the same inputs give byte-identical files.
+
+Up-to-date check: a problem file records ``meta["build_hash"]``, a SHA-256 of the
+mesh file's bytes, its units, every build parameter, the gripper and prior
+constants and ``CODE_VERSION``; a file whose hash matches is not rebuilt.
+``CODE_VERSION`` is bumped whenever a change alters the output.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import io
+import json
+import os
+import zipfile
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from . import catalog as _catalog
+from . import grasps as G
+from . import poses as _poses
+from . import prior as _prior
+from .errors import PrecomputeError
+from .mesh import load_mesh
+from .raycast import RayCaster
+
+__all__ = [
+    "CODE_VERSION",
+    "BuildParams",
+    "build_problem",
+    "build_hash",
+    "object_key",
+    "problem_path",
+    "read_meta",
+    "is_up_to_date",
+    "ensure",
+]
+
+CODE_VERSION = "1"
+
+STREAM_GRASPS = 1
+STREAM_PERTURB = 2
+STREAM_PRIOR = 3
+
+
+@dataclasses.dataclass(frozen=True)
+class BuildParams:
+    """What a build depends on besides the mesh."""
+
+    trials: int = 10  # T reservoirs
+    grasps: int = 2000  # K grasps per reservoir and pose
+    samples: int = G.SAMPLES  # perturbed executions per grasp
+    seed: int = 0
+    landing_threshold: float = _poses.LANDING_THRESHOLD
+
+    def check(self) -> BuildParams:
+        if self.trials < 1:
+            raise PrecomputeError(f"--trials must be at least 1, got {self.trials}")
+        if self.grasps < 1:
+            raise PrecomputeError(f"--grasps must be at least 1, got {self.grasps}")
+        if self.samples < 1:
+            raise PrecomputeError(f"--samples must be at least 1, got {self.samples}")
+        if self.seed < 0:
+            raise PrecomputeError(f"--seed must be non-negative, got {self.seed}")
+        if not 0.0 <= self.landing_threshold < 1.0:
+            raise PrecomputeError(
+                f"landing threshold must lie in [0, 1), got {self.landing_threshold}"
+            )
+        return self
+
+
+def object_key(name: str) -> int:
+    """Stable integer of an object name (seeding)."""
+    return int.from_bytes(hashlib.sha256(name.encode()).digest()[:8], "little") % (
+        2**31
+    )
+
+
+def build_hash(mesh_sha256: str, units: str, name: str, params: BuildParams) -> str:
+    blob = json.dumps(
+        {
+            "mesh_sha256": mesh_sha256,
+            "units": units,
+            "name": name,
+            "params": dataclasses.asdict(params),
+            "gripper": G.gripper_params(),
+            "prior": _prior.prior_params(),
+            "tilt": [_poses.TILT_SIGMA_DEG, _poses.TILT_ANGLES, _poses.TILT_AZIMUTHS],
+            "code_version": CODE_VERSION,
+        },
+        sort_keys=True,
+    )
+    return hashlib.sha256(blob.encode()).hexdigest()
+
+
+def _rng(params: BuildParams, name: str, pose: int, trial: int, stream: int):
+    ss = np.random.SeedSequence([params.seed, object_key(name), pose, trial, stream])
+    return np.random.Generator(np.random.PCG64(ss))
+
+
+def build_problem(
+    mesh_path: str | Path,
+    *,
+    units: str,
+    name: str,
+    set_name: str = "custom",
+    params: BuildParams | None = None,
+    on_poses: Callable[[int], None] | None = None,
+    on_pose_done: Callable[[], None] | None = None,
+):
+    """Build the :class:`legs_jax.problem.Problem` of one mesh.
+
+    ``on_poses(P)`` is called once the number of poses is known and
+    ``on_pose_done()`` after each pose (progress bars).
+    """
+    from legs_jax.problem import Problem
+
+    params = (params or BuildParams()).check()
+    mesh = load_mesh(mesh_path, units)
+    com = mesh.center_mass
+    try:
+        hull = _poses.hull_model(mesh.vertices, mesh.faces, com)
+    except ValueError as e:
+        raise PrecomputeError(f"{mesh.path}: degenerate: {e}") from None
+    sp = _poses.stable_poses(
+        hull, mesh.vertices, mesh.faces, threshold=params.landing_threshold
+    )
+    topple = _poses.topple_matrix(hull, sp)
+    P, T, K, S = len(sp.landing), params.trials, params.grasps, params.samples
+    if on_poses is not None:
+        on_poses(P)
+
+    rob = np.zeros((T, P, K), np.float32)
+    prior = np.zeros((T, P, K), np.float32)
+    valid = np.zeros((T, P, K), bool)
+    center = np.zeros((T, P, K, 3), np.float32)
+    axis = np.zeros((T, P, K, 3), np.float32)
+    width = np.zeros((T, P, K), np.float32)
+    height = np.zeros((T, P, K), np.float32)
+    pose_info = []
+    for s in range(P):
+        tf = sp.transforms[s]
+        posed = mesh.vertices @ tf[:3, :3].T + tf[:3, 3]
+        caster = RayCaster(posed, mesh.faces)
+        hmap = G.height_map(caster)
+        res = [
+            G.sample_reservoir(caster, hmap, K, _rng(params, name, s, t, STREAM_GRASPS))
+            for t in range(T)
+        ]
+        # every trial's perturbations from its own stream, one block per slot
+        dxy, dyaw, mu, c_all, a_all, where = [], [], [], [], [], []
+        for t, r in enumerate(res):
+            d1, d2, d3 = G.perturbations(_rng(params, name, s, t, STREAM_PERTURB), K, S)
+            v = r.valid
+            dxy.append(d1[v])
+            dyaw.append(d2[v])
+            mu.append(d3[v])
+            c_all.append(r.center[v])
+            a_all.append(r.axis[v])
+            where.append(np.flatnonzero(v))
+        p_flat = G.robustness(
+            caster,
+            hmap,
+            np.concatenate(c_all),
+            np.concatenate(a_all),
+            np.concatenate(dxy),
+            np.concatenate(dyaw),
+            np.concatenate(mu),
+        )
+        offset = 0
+        for t, r in enumerate(res):
+            idx = where[t]
+            p = p_flat[offset : offset + len(idx)]
+            offset += len(idx)
+            rob[t, s, idx] = p
+            valid[t, s] = r.valid
+            center[t, s] = r.center
+            axis[t, s] = r.axis
+            width[t, s] = r.width
+            height[t, s] = r.center[:, 2]
+            eps = _prior.prior_noise(_rng(params, name, s, t, STREAM_PRIOR), K)
+            q = _prior.prior_from_noise(rob[t, s].astype(np.float64), eps)
+            prior[t, s] = np.where(r.valid, q, 0.0)
+        pose_info.append(
+            {
+                "landing": round(float(sp.landing[s]), 6),
+                "merged_facets": len(sp.members[s]),
+                "valid_grasps": [int(r.valid.sum()) for r in res],
+                "candidates": [int(r.candidates) for r in res],
+                "com_height": round(float(tf[2, 3]), 6),
+            }
+        )
+        if on_pose_done is not None:
+            on_pose_done()
+
+    landing = sp.landing / sp.landing.sum()
+    topple = topple / topple.sum(axis=1, keepdims=True)
+    meta = {
+        "name": name,
+        "set": set_name,
+        "mesh_file": _display_path(mesh.path),
+        "mesh_sha256": mesh.sha256,
+        "units": units,
+        "mesh_scale": mesh.scale,
+        "pose_transform_note": (
+            "rigid transforms of the mesh after scaling by mesh_scale (metres); "
+            "pose frame: table z=0, z up, centre of mass above the origin"
+        ),
+        "repairs": list(mesh.repairs),
+        "params": dataclasses.asdict(params),
+        "gripper": G.gripper_params(),
+        "prior": _prior.prior_params(),
+        "prior_label": "synthetic GQ-CNN stand-in (not a learned network)",
+        "topple_tilts": {
+            "sigma_deg": _poses.TILT_SIGMA_DEG,
+            "angles": _poses.TILT_ANGLES,
+            "azimuths": _poses.TILT_AZIMUTHS,
+        },
+        "stable_facets": sp.num_candidates,
+        "dropped_landing_mass": round(sp.dropped_mass, 6),
+        "poses": pose_info,
+        "code_version": CODE_VERSION,
+        "build_hash": build_hash(mesh.sha256, units, name, params),
+    }
+    problem = Problem(
+        name=name,
+        landing=landing.astype(np.float32),
+        topple=topple.astype(np.float32),
+        robustness=rob,
+        prior=prior,
+        valid=valid,
+        grasp_center=center,
+        grasp_axis=axis,
+        grasp_width=width,
+        grasp_height=height,
+        pose_transform=sp.transforms.astype(np.float32),
+        pose_valid=np.ones(P, bool),
+        meta=meta,
+    )
+    return problem.validate()
+
+
+def _display_path(path: Path) -> str:
+    """The mesh path relative to the repository when inside it (no machine paths)."""
+    try:
+        return str(path.resolve().relative_to(_catalog.data_dir().resolve().parent))
+    except ValueError:
+        return path.name
+
+
+# ----------------------------------------------------------------------- the cache
+
+
+def problems_dir(data_dir: Path | None = None) -> Path:
+    """Where problem files are written: ``<data>/problems`` when writable, else the
+    user cache (``$XDG_CACHE_HOME/legs_jax/problems``)."""
+    base = Path(data_dir) if data_dir is not None else _catalog.data_dir()
+    out = base / "problems"
+    if _writable(out):
+        return out
+    cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
+    return cache / "legs_jax" / "problems"
+
+
+def _writable(folder: Path) -> bool:
+    probe = folder
+    while not probe.exists():
+        if probe.parent == probe:
+            return False
+        probe = probe.parent
+    return os.access(probe, os.W_OK)
+
+
+def problem_path(info, out: Path) -> Path:
+    return Path(out) / info.set / f"{info.name}.npz"
+
+
+def read_meta(path: Path) -> dict | None:
+    """The meta dict of a problem file without loading its arrays (None if
+    unreadable)."""
+    try:
+        with zipfile.ZipFile(path) as z:
+            raw = z.read("meta_json.npy")
+        arr = np.load(io.BytesIO(raw), allow_pickle=False)
+        header = json.loads(str(arr.reshape(-1)[0]))
+        return dict(header.get("meta", {}))
+    except Exception:  # noqa: BLE001 - any unreadable file is simply out of date
+        return None
+
+
+def is_up_to_date(path: Path, expected_hash: str) -> bool:
+    if not Path(path).is_file():
+        return False
+    meta = read_meta(path)
+    return meta is not None and meta.get("build_hash") == expected_hash
+
+
+def expected_hash(info, params: BuildParams) -> str:
+    from .mesh import file_sha256
+
+    return build_hash(file_sha256(info.mesh_path), info.units, info.name, params)
+
+
+def ensure(
+    names: Sequence[str],
+    *,
+    data_dir: Path | None = None,
+    progress: bool = True,
+    jobs: int | None = None,
+    params: BuildParams | None = None,
+) -> dict[str, Path]:
+    """The problem file of each named object (object or set names), building the
+    missing or out-of-date ones. Files live in ``<data>/problems/<set>/<name>.npz``
+    (or the user cache when the data folder is read-only)."""
+    from .runner import build_many
+
+    root = Path(data_dir) if data_dir is not None else None
+    infos = _catalog.resolve(list(names), root=root)
+    out = problems_dir(root)
+    params = (params or BuildParams()).check()
+    paths = {i.name: problem_path(i, out) for i in infos}
+    todo = [
+        i for i in infos if not is_up_to_date(paths[i.name], expected_hash(i, params))
+    ]
+    if todo:
+        build_many(
+            todo,
+            out=out,
+            params=params,
+            jobs=jobs if jobs is not None else min(len(todo), os.cpu_count() or 1),
+            progress=progress,
+        )
+    return paths

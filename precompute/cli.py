@@ -1,0 +1,165 @@
+"""Command line: ``python -m precompute`` (build), ``report``, ``calibrate``."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from .errors import PrecomputeError
+
+BUILD_HELP = """\
+Build problem files (SPEC §1) from meshes: stable poses and landing probabilities,
+topple matrix, T reservoirs of K top-down parallel-jaw grasps per pose, the
+ground-truth success probability of every grasp (Embree ray casting under
+perturbation) and the synthetic GQ-CNN stand-in prior.
+
+Files go to <out>/<set>/<name>.npz (default out: data/problems). Up-to-date files
+(same mesh, parameters and code version) are skipped; --force rebuilds them.
+
+Other commands:
+  python -m precompute report      summary.csv and figures of built problems
+  python -m precompute calibrate   prior-only gaps per set for a grid of prior noise
+"""
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    from .build import BuildParams
+
+    d = BuildParams()
+    p = argparse.ArgumentParser(
+        prog="python -m precompute",
+        description=BUILD_HELP,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    what = p.add_mutually_exclusive_group(required=True)
+    what.add_argument("--all", action="store_true", help="all 62 catalogue objects")
+    what.add_argument(
+        "--set",
+        dest="set_name",
+        metavar="NAME",
+        help="one set: dexnet_adv or egad_eval",
+    )
+    what.add_argument(
+        "--object", nargs="+", metavar="NAME", help="catalogue objects by name"
+    )
+    what.add_argument(
+        "--mesh",
+        type=Path,
+        metavar="PATH",
+        help="your own mesh (.obj/.stl/.ply/.off); needs --units",
+    )
+    p.add_argument(
+        "--units",
+        choices=["m", "cm", "mm"],
+        help="length unit of --mesh (catalogue meshes know theirs)",
+    )
+    p.add_argument(
+        "--out",
+        type=Path,
+        help="folder for problem files (default: data/problems, or the user cache "
+        "when data/ is read-only)",
+    )
+    p.add_argument("--trials", type=int, default=d.trials, help="reservoirs T (10)")
+    p.add_argument(
+        "--grasps", type=int, default=d.grasps, help="grasps K per pose (2000)"
+    )
+    p.add_argument(
+        "--samples",
+        type=int,
+        default=d.samples,
+        help=f"perturbation samples per grasp ({d.samples})",
+    )
+    p.add_argument("--seed", type=int, default=d.seed, help="seed (0)")
+    p.add_argument(
+        "--jobs", type=int, default=None, help="worker processes (default: CPU cores)"
+    )
+    p.add_argument("--force", action="store_true", help="rebuild up-to-date files too")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    return p
+
+
+def _build(argv) -> int:
+    import os
+
+    from . import catalog
+    from .build import (
+        BuildParams,
+        expected_hash,
+        is_up_to_date,
+        problem_path,
+        problems_dir,
+    )
+    from .mesh import UNITS
+    from .runner import Task, run_tasks
+
+    a = _build_parser().parse_args(argv)
+    params = BuildParams(
+        trials=a.trials, grasps=a.grasps, samples=a.samples, seed=a.seed
+    ).check()
+    if a.jobs is not None and a.jobs < 1:
+        raise PrecomputeError(f"--jobs must be at least 1, got {a.jobs}")
+    out = a.out if a.out is not None else problems_dir()
+    if a.mesh is not None:
+        if a.units is None:
+            raise PrecomputeError(
+                f"--mesh {a.mesh} needs --units (one of {', '.join(UNITS)})"
+            )
+        name = a.mesh.stem
+        tasks = [
+            Task(a.mesh, a.units, name, "custom", Path(out) / "custom" / f"{name}.npz")
+        ]
+        skipped = []
+    else:
+        if a.units is not None:
+            raise PrecomputeError("--units applies to --mesh only")
+        if a.all:
+            infos = catalog.objects()
+        elif a.set_name:
+            infos = catalog.objects(a.set_name)
+        else:
+            infos = catalog.resolve(a.object)
+        tasks, skipped = [], []
+        for i in infos:
+            dest = problem_path(i, out)
+            if not a.force and is_up_to_date(dest, expected_hash(i, params)):
+                skipped.append(dest)
+            else:
+                tasks.append(Task(i.mesh_path, i.units, i.name, i.set, dest))
+    if skipped:
+        print(f"{len(skipped)} up-to-date problem file(s) skipped (--force rebuilds)")
+    if not tasks:
+        return 0
+    jobs = a.jobs if a.jobs is not None else (os.cpu_count() or 1)
+    start = time.perf_counter()
+    results = run_tasks(tasks, params=params, jobs=jobs, progress=not a.quiet)
+    wall = time.perf_counter() - start
+    poses = sum(r[2] for r in results)
+    print(
+        f"built {len(results)} problem file(s), {poses} poses, in {wall:.1f} s "
+        f"-> {Path(out)}"
+    )
+    if a.mesh is not None:
+        print(f"problem file: {tasks[0].dest}")
+    return 0
+
+
+def main(argv=None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        if argv and argv[0] == "report":
+            from .report import main as report_main
+
+            return report_main(argv[1:])
+        if argv and argv[0] == "calibrate":
+            from .calibrate import main as calibrate_main
+
+            return calibrate_main(argv[1:])
+        return _build(argv)
+    except PrecomputeError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130

@@ -1,0 +1,168 @@
+"""Building several problems, in parallel processes, with progress bars."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import queue
+import time
+from pathlib import Path
+
+from .errors import PrecomputeError
+
+__all__ = ["Task", "build_many", "run_tasks"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Task:
+    """One mesh to build into one problem file."""
+
+    mesh_path: Path
+    units: str
+    name: str
+    set_name: str
+    dest: Path
+
+
+def build_many(infos, *, out: Path, params, jobs: int = 1, progress: bool = True):
+    """Build the problem files of catalogue objects ``infos`` into ``out``."""
+    from .build import problem_path
+
+    tasks = [
+        Task(i.mesh_path, i.units, i.name, i.set, problem_path(i, out)) for i in infos
+    ]
+    return run_tasks(tasks, params=params, jobs=jobs, progress=progress)
+
+
+def _run_one(task: Task, params, messages=None) -> tuple[str, float, int]:
+    from legs_jax.problem import save
+
+    from .build import build_problem
+
+    start = time.perf_counter()
+
+    def on_poses(n):
+        if messages is not None:
+            messages.put(("poses", task.name, n))
+
+    def on_pose_done():
+        if messages is not None:
+            messages.put(("pose", task.name, 1))
+
+    problem = build_problem(
+        task.mesh_path,
+        units=task.units,
+        name=task.name,
+        set_name=task.set_name,
+        params=params,
+        on_poses=on_poses,
+        on_pose_done=on_pose_done,
+    )
+    save(problem, task.dest)
+    return task.name, time.perf_counter() - start, problem.num_poses
+
+
+def _worker_init():
+    # one thread per worker for the NumPy/BLAS parts: the processes are the
+    # parallelism
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[var] = "1"
+
+
+class _Bars:
+    def __init__(self, total_objects: int, enabled: bool):
+        self.enabled = enabled
+        if not enabled:
+            return
+        from tqdm import tqdm
+
+        tqdm.monitor_interval = 0
+        self.objects = tqdm(total=total_objects, desc="objects", unit="obj", position=0)
+        self.poses = tqdm(total=0, desc="poses", unit="pose", position=1)
+
+    def handle(self, msg):
+        if not self.enabled:
+            return
+        kind, name, n = msg
+        if kind == "poses":
+            self.poses.total += n
+            self.poses.refresh()
+        elif kind == "pose":
+            self.poses.update(n)
+            self.poses.set_postfix_str(name, refresh=False)
+
+    def object_done(self, name: str):
+        if self.enabled:
+            self.objects.update(1)
+            self.objects.set_postfix_str(name, refresh=True)
+
+    def close(self):
+        if self.enabled:
+            self.poses.close()
+            self.objects.close()
+
+
+def run_tasks(tasks: list[Task], *, params, jobs: int = 1, progress: bool = True):
+    """Build every task; returns [(name, seconds, poses)] in task order.
+
+    A :class:`PrecomputeError` of any task is raised after the other tasks finish
+    (their files are kept)."""
+    jobs = max(1, min(int(jobs), len(tasks))) if tasks else 1
+    bars = _Bars(len(tasks), progress)
+    results: dict[str, tuple[str, float, int]] = {}
+    errors: list[str] = []
+    try:
+        if jobs == 1:
+
+            class _Direct:
+                def put(self, msg):
+                    bars.handle(msg)
+
+            direct = _Direct()
+            for task in tasks:
+                try:
+                    results[task.name] = _run_one(task, params, direct)
+                except PrecomputeError as e:
+                    errors.append(str(e))
+                bars.object_done(task.name)
+        else:
+            _parallel(tasks, params, jobs, bars, results, errors)
+    finally:
+        bars.close()
+    if errors:
+        more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
+        raise PrecomputeError(errors[0] + more)
+    return [results[t.name] for t in tasks]
+
+
+def _parallel(tasks, params, jobs, bars, results, errors):
+    import multiprocessing as mp
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+    method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
+    ctx = mp.get_context(method)
+    with ctx.Manager() as manager:
+        messages = manager.Queue()
+        with ProcessPoolExecutor(
+            max_workers=jobs, mp_context=ctx, initializer=_worker_init
+        ) as pool:
+            pending = {pool.submit(_run_one, t, params, messages): t for t in tasks}
+            while pending:
+                done, _ = wait(list(pending), timeout=0.2, return_when=FIRST_COMPLETED)
+                _drain(messages, bars)
+                for fut in done:
+                    task = pending.pop(fut)
+                    try:
+                        results[task.name] = fut.result()
+                    except PrecomputeError as e:
+                        errors.append(str(e))
+                    bars.object_done(task.name)
+            _drain(messages, bars)
+
+
+def _drain(messages, bars):
+    while True:
+        try:
+            bars.handle(messages.get_nowait())
+        except queue.Empty:
+            return
