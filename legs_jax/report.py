@@ -597,7 +597,6 @@ def paper_value(mapping: Mapping, *keys):
 
 # ==================================================================== report
 _EXPERIMENTS = ("main", "case_study", "early_stopping", "prior_strength", "confidence")
-_LEAD = "**[to be completed from the README's deviations: {}]**"
 
 
 def _f(x: float | None, d: int = 3) -> str:
@@ -872,9 +871,10 @@ def build_report(ctx: Mapping) -> str:
             L.append(
                 f"- The paper's bound is a valid lower bound at {_pct(acc)} of the "
                 f"checks (paper {_pct(p['accuracy'])}; target 95 %), "
-                f"{'above' if acc >= 0.95 else 'below'} the nominal 95 %; it is "
-                f"{_pct(tight, 2)} below the true performance on average (paper "
-                f"{_pct(p['tightness'], 2)})."
+                f"{'above' if acc >= 0.95 else 'below'} the nominal 95 %; it lies "
+                f"{_pct(abs(tight), 2)} {'below' if tight >= 0 else 'above'} the "
+                "true performance on average (paper "
+                f"{_pct(p['tightness'], 2)} below)."
             )
         if "attempted" in s.index:
             L.append(
@@ -973,9 +973,32 @@ def build_report(ctx: Mapping) -> str:
     return "\n".join(L).rstrip("\n") + "\n"
 
 
+def _zero_gap_objects(main: Mapping) -> list[str]:
+    """Objects on which every method's mean final gap is 0 (no grasp with p > 0
+    in any reservoir: every policy is optimal)."""
+    gaps = main.get("gaps")
+    if gaps is None or not len(gaps):
+        return []
+    worst = gaps.groupby(["set", "object"], sort=False)["gap_mean"].max()
+    return [obj for (_, obj), v in worst.items() if v < 1e-9]
+
+
+def _row_mean(t1, set_: str, method: str) -> float | None:
+    r = t1[(t1["set"] == set_) & (t1["method"] == method) & (t1["variant"] == "")]
+    return float(r["mean"].iloc[0]) if len(r) else None
+
+
 def _discussion(ctx: Mapping) -> list[str]:
     main = ctx.get("main")
     L = ["## Discussion", ""]
+    L += [
+        "Each difference below is tied to a deviation listed in the README "
+        '("Deviations from the paper"). The engine itself is checked against a '
+        "plain NumPy reference of every method (`tests/test_parity.py`), so the "
+        "differences come from the problems (prior, reservoirs, physics), not from "
+        "the algorithms' code.",
+        "",
+    ]
     L += ["### Synthetic prior", ""]
     if main:
         t1 = main["table1"]
@@ -993,14 +1016,47 @@ def _discussion(ctx: Mapping) -> list[str]:
             L += [
                 "The Dex-Net and K_s=100 upper-bound rows depend only on the prior and "
                 "the reservoirs, so they measure how well the synthetic prior was "
-                "calibrated to the paper: " + "; ".join(rows) + ". Every learning "
-                "method starts from the same prior, so a prior that ranks grasps "
-                "better or worse than GQ-CNN shifts all learning curves, most of all "
-                "those of BORGES (K_s=100) and LEGS, whose initial sets are the top "
-                "100 by the prior.",
+                "calibrated to the paper: " + "; ".join(rows) + ".",
                 "",
             ]
-    L += [_LEAD.format("how the prior is made and calibrated"), ""]
+    L += [
+        "GQ-CNN cannot be run here, so q is made from the ground truth p with "
+        "seeded noise (`precompute/prior.py`), and its noise level was chosen so "
+        "that those two rows match the paper on the Dex-Net set. Two numbers fix "
+        "how good the prior's first choice and its top 100 are, not how it ranks "
+        "the rest: ours correlates only weakly with p over a whole reservoir "
+        "(`results/precompute/sets.md`). That is what separates our learning rows "
+        "from the paper's. With a few good grasps among 2000 and about 3000 / P "
+        "attempts per pose, Thompson sampling over 2000 nearly uninformative "
+        "posteriors (BORGES K_s=2000, LEGS(-AS)) keeps trying new grasps and "
+        "rarely finds and keeps a good one; BORGES (K_s=100) starts from the top "
+        "100 by prior, which on our problems already holds a grasp almost as good "
+        "as the upper bound (compare the two rows). LEGS starts from the same "
+        "100 but replaces members, bringing in grasps from the rest of the "
+        "ranking that are mostly worse. In the paper, where GQ-CNN ranks the whole "
+        "reservoir well, BORGES (K_s=2000) and LEGS both reach 0.04 on the Dex-Net "
+        "set.",
+        "",
+        "The learning curves of LEGS have a saw-tooth with the period of the "
+        "pruning interval n. At every pruning step removed slots are refilled from "
+        "the queue; a new grasp has only its prior, whose posterior mean "
+        "(1 + q) / 3 at s = 1 beats that of grasps that have failed, so the "
+        "recommendation (argmax posterior mean over the active set, SPEC) jumps to "
+        "it until it is tried. All rollouts prune at the same steps, so the jumps "
+        "add up in the mean curve.",
+        "",
+    ]
+    ps = ctx.get("prior_strength")
+    if ps is not None and len(ps["table"]):
+        df = ps["table"]
+        best = float(df.loc[df["mean"].idxmin(), "s"])
+        if best == float(df["s"].min()):
+            L += [
+                "The prior-strength grid points the same way: on the bar clamp the "
+                f"lowest gap comes from the weakest prior (s = {best:g}), where the "
+                "paper finds s = 1 best.",
+                "",
+            ]
     L += ["### Objects: 13 vs 14 Dex-Net, 49 vs 39 EGAD", ""]
     if main:
         t1 = main["table1"]
@@ -1016,11 +1072,38 @@ def _discussion(ctx: Mapping) -> list[str]:
             L += [
                 "; ".join(parts) + ". Set means and win counts are over different "
                 "object lists, so win counts are best compared as fractions, and the "
-                "standard errors across objects are not directly comparable.",
+                "standard errors across objects are not directly comparable. The "
+                "14th Dex-Net adversarial object is not public; the paper does not "
+                "say which 39 EGAD objects it used, so all 49 are run.",
                 "",
             ]
-    L += [_LEAD.format("which objects are missing or added, and why"), ""]
+        zero = _zero_gap_objects(main)
+        if zero:
+            L += [
+                f"On {len(zero)} object(s) ({', '.join(zero)}) no grasp of any "
+                "reservoir succeeds (p* = 0), so every method has gap 0 and wins "
+                "them: they inflate the win counts of every row (the Dex-Net row "
+                "included) and pull the EGAD means down.",
+                "",
+            ]
     L += ["### Physics", ""]
+    if main:
+        t1 = main["table1"]
+        d, e = (
+            _row_mean(t1, "dexnet_adv", "dexnet"),
+            _row_mean(t1, "egad_eval", "dexnet"),
+        )
+        if d is not None and e is not None:
+            L += [
+                "EGAD meshes are used at their designed size (about 100 mm) with one "
+                "80 mm gripper, and many EGAD grasps fail in our simulator (mean p* "
+                "0.45 against 0.84 on the Dex-Net set, `results/precompute/"
+                "summary.csv`). Gaps are bounded by p*, so every EGAD row is lower "
+                f"than it would be with easier objects: the Dex-Net row is {_f(e)} "
+                f"on EGAD against {_f(d)} on the Dex-Net set, where the paper has "
+                "0.59 and 0.56.",
+                "",
+            ]
     cs = ctx.get("case_study")
     if cs:
         fr = [
@@ -1035,16 +1118,37 @@ def _discussion(ctx: Mapping) -> list[str]:
                 "grasps with p ≥ 0.5 in trial 0's reservoir of the case-study "
                 "objects is " + ", ".join(fr) + "; how abundant good grasps are "
                 "decides how much exploration pays off (the paper's reading of "
-                "Fig. 3).",
+                "Fig. 3). Good grasps are scarcer in our reservoirs than in the "
+                "paper's histograms, which favours the methods that stay with the "
+                "prior's top 100.",
                 "",
             ]
-    L += [_LEAD.format("stable poses, topple model, ground truth, gripper"), ""]
+    L += ["### Early stopping", ""]
+    es = ctx.get("early_stopping")
+    if es:
+        s = es["summary"].set_index("bound")
+        if "all" in s.index:
+            acc = float(s.loc["all", "accuracy"])
+            L += [
+                f"The Dirichlet bound is a valid lower bound at {_pct(acc)} of the "
+                "checks here against 95.8 % in the paper. The bound plugs in p̂*_s, "
+                "the largest posterior mean of a pose's candidates, as if it were "
+                "the success probability of the recommended grasp. With posteriors "
+                "built on one or two attempts and a weak prior, the largest of many "
+                "posterior means overstates the true p of its grasp (the winner's "
+                "curse), so the bound sits above the true performance. Taking p̂* "
+                "over attempted grasps only helps little, for the same reason. In "
+                "the paper, good grasps are found and retried often, and the "
+                "posterior means of the recommended grasps are accurate.",
+                "",
+            ]
     L += ["### Other choices", ""]
     L += [
-        _LEAD.format(
-            "posterior offset, recommendation rule, TQL learning rate, early-stopping "
-            "variant"
-        ),
+        'The posterior has the "+1" of Algorithm 1 (Beta(1 + s q + S, '
+        "1 + s (1 − q) + F)); the original BORGES code's prior (offset 0, s = 5) "
+        "is the extra row of Table I. Every method is scored by the argmax "
+        "posterior mean (TQL: argmax Q) of its candidates; TQL uses η = 0.1, which "
+        "the paper does not state.",
         "",
     ]
     return L

@@ -839,6 +839,19 @@ def _versions() -> dict[str, str]:
     return out
 
 
+def _portable_path(path: str | os.PathLike) -> str:
+    """``path`` relative to the working directory or to the repository when it lies
+    under one of them (so results name no machine-specific folder), else as
+    given."""
+    p = Path(path).resolve()
+    for base in (Path.cwd().resolve(), Path(__file__).resolve().parents[1]):
+        try:
+            return p.relative_to(base).as_posix()
+        except ValueError:
+            continue
+    return str(path)
+
+
 def _git_commit() -> dict[str, Any]:
     root = Path(__file__).resolve().parent.parent
     try:
@@ -1110,7 +1123,8 @@ def _write_manifest(
         "config": plan.config(),
         "config_hash": res.config_hash(plan.config()),
         "problem_files": {
-            o.name: {"path": o.path, "sha256": o.sha256} for o in plan.objects
+            o.name: {"path": _portable_path(o.path), "sha256": o.sha256}
+            for o in plan.objects
         },
         "seeds": {
             "seed": plan.seed,
@@ -1156,7 +1170,7 @@ def _merge(plan: ExperimentPlan, d: Path) -> dict[str, int]:
             "object_id": np.array([o.object_id for o in plan.objects], np.int64),
             "num_poses": np.array([o.num_poses for o in plan.objects], np.int64),
             "num_grasps": np.array([o.num_grasps for o in plan.objects], np.int64),
-            "problem_file": [str(o.path) for o in plan.objects],
+            "problem_file": [_portable_path(o.path) for o in plan.objects],
             "sha256": [o.sha256 for o in plan.objects],
         }
     )

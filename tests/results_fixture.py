@@ -222,7 +222,11 @@ def _write_experiment(root: Path, name: str, arms, objects, *, checks, active, s
                 "object_id": np.array([OBJECT_ID[o] for o in objects], np.int64),
                 "num_poses": np.full(len(objects), P, np.int64),
                 "num_grasps": np.full(len(objects), K, np.int64),
-                "problem_file": [f"data/problems/{SET_OF[o]}/{o}.npz" for o in objects],
+                # Where the sweep that made them found its problem files: a folder
+                # that does not exist here (the figures then use <data>/problems).
+                "problem_file": [
+                    str(root / "elsewhere" / SET_OF[o] / f"{o}.npz") for o in objects
+                ],
                 "sha256": ["0" * 64] * len(objects),
             }
         ),

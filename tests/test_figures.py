@@ -208,7 +208,7 @@ def test_report_contents(world):
         "2.97 %",
         "synthetic",
         "13 vs 14 Dex-Net, 49 vs 39 EGAD",
-        "to be completed",
+        "Deviations from the paper",
     ):
         assert text in report
     # The fixture lacks turbine_housing's problem file and F6's mesh; the report
