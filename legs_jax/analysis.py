@@ -481,9 +481,11 @@ def active_set_trace(
 ) -> tuple[int, pd.DataFrame, pd.DataFrame]:
     """The active set of one LEGS rollout on one pose over time (Fig. 1, bottom).
 
-    ``pose`` defaults to the pose present at the most checks (ties: the most
-    likely landing pose when ``grasps`` gives landing probabilities, then the
-    lowest index). Returns (pose, members, summary): members has one row per
+    ``pose`` defaults to the pose whose active set changed most (most distinct
+    members over the run) among the poses present at no fewer than half as many
+    checks as the most present one (ties: more checks, then the most likely
+    landing pose when ``grasps`` gives landing probabilities, then the lowest
+    index). Returns (pose, members, summary): members has one row per
     filled slot and check (``step, slot, grasp, robustness``); summary one row
     per check: ``step, n_members, best, mean``, plus ``p_star`` (best robustness
     of the pose's reservoir) when ``grasps`` is given.
@@ -506,7 +508,15 @@ def active_set_trace(
             g = grasps[grasps["object"] == obj]
             lam = g.groupby("pose")["landing"].first()
             landing = lam.reindex(n_checks.index).fillna(0.0)
-        key = sorted(n_checks.index, key=lambda p: (-n_checks[p], -landing[p], int(p)))
+        if "grasp" in a.columns:
+            distinct = a.groupby("pose")["grasp"].nunique()
+        else:
+            distinct = pd.Series(0, index=n_checks.index)
+        eligible = [p for p in n_checks.index if 2 * n_checks[p] >= n_checks.max()]
+        key = sorted(
+            eligible,
+            key=lambda p: (-distinct[p], -n_checks[p], -landing[p], int(p)),
+        )
         pose = int(key[0])
     m = a[a["pose"] == pose].sort_values(["step", "slot"])
     cols = [c for c in ("step", "slot", "grasp", "robustness") if c in m.columns]

@@ -50,7 +50,9 @@ __all__ = [
 
 EXPERIMENTS = ("main", "case_study", "early_stopping", "prior_strength", "confidence")
 CASE_OBJECTS = ("climbing_hold", "C3", "F6", "turbine_housing")
-ACTIVE_OBJECT = "climbing_hold"
+# None: the case-study object whose LEGS active set changes most (the most
+# distinct members on one pose), which shows the pruning best.
+ACTIVE_OBJECT: str | None = None
 DEFAULT_RHO = tuple(round(0.05 * i, 2) for i in range(1, 20))
 
 STYLE = {
@@ -653,7 +655,7 @@ def early_stopping_figure(res: Results, out: Path) -> tuple[Path, dict[str, Any]
 
 # ================================================================ active set
 def active_set_figure(
-    res: Results, data: ObjectData, out: Path, obj: str = ACTIVE_OBJECT
+    res: Results, data: ObjectData, out: Path, obj: str | None = ACTIVE_OBJECT
 ) -> tuple[Path, dict[str, Any]]:
     """The active set of one LEGS rollout over time (the paper's Fig. 1, bottom):
     the object with its first and last active set drawn as grasps, and the
@@ -662,6 +664,13 @@ def active_set_figure(
     grasps = (
         res.table("case_study", "grasps") if res.has("case_study", "grasps") else None
     )
+    if obj is None and len(act):
+        first = act
+        for c in ("trial", "rollout"):
+            if c in first.columns:
+                first = first[first[c] == first[c].min()]
+        changed = first.groupby(["object", "pose"], sort=False)["grasp"].nunique()
+        obj = str(changed.groupby(level=0, sort=False).max().idxmax())
     if not (act["object"] == obj).any():
         avail = list(dict.fromkeys(act["object"]))
         if not avail:
@@ -861,7 +870,7 @@ def generate(
     data: str | Path = "data",
     *,
     case_objects: Sequence[str] = CASE_OBJECTS,
-    active_object: str = ACTIVE_OBJECT,
+    active_object: str | None = ACTIVE_OBJECT,
     progress: bool = True,
     debug: bool = False,
 ) -> tuple[list[Path], list[str]]:
@@ -999,7 +1008,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--active-object",
         default=ACTIVE_OBJECT,
         metavar="NAME",
-        help="object whose LEGS active set is drawn (default: %(default)s)",
+        help="object whose LEGS active set is drawn (default: the case-study "
+        "object whose active set changes most)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress bar or listing")
     p.add_argument(
