@@ -1046,6 +1046,24 @@ def _discussion(ctx: Mapping) -> list[str]:
         "add up in the mean curve.",
         "",
     ]
+    if main and main.get("runs") is not None:
+        r = main["runs"]
+        keys = ["object", "trial", "rollout"]
+        a = r[(r["method"] == "borges_2000") & (r["variant"] == "")]
+        b = r[(r["method"] == "legs_no_as") & (r["variant"] == "")]
+        if len(a) and len(b):
+            m = a[keys + ["final_gap"]].merge(b[keys + ["final_gap"]], on=keys)
+            if len(m):
+                same = float((m["final_gap_x"] == m["final_gap_y"]).mean())
+                L += [
+                    "LEGS(-AS) ends with exactly the final gap of BORGES (K_s=2000) "
+                    f"in {_pct(same)} of the runs (both share the random numbers of "
+                    "a rollout): its confidence bounds rarely exclude a grasp, and "
+                    "the grasps they do exclude are not the ones the recommendation "
+                    "uses, so the two learning curves of Fig. 3 lie on top of each "
+                    "other.",
+                    "",
+                ]
     ps = ctx.get("prior_strength")
     if ps is not None and len(ps["table"]):
         df = ps["table"]
