@@ -494,6 +494,20 @@ def test_dry_run_prints_plan(tmp_path, probs, fake_engine, capsys):
     assert not fake_engine and not (tmp_path / "prior_strength").exists()
 
 
+def test_dry_run_does_not_build_missing_problems(tmp_path, monkeypatch, capsys):
+    import precompute
+
+    built = []
+    monkeypatch.setattr(sweep, "_missing_problems", lambda names: list(names))
+    monkeypatch.setattr(precompute, "ensure", lambda *a, **k: built.append(a))
+    args = ["--experiment", "prior_strength", "--dry-run", "--out", str(tmp_path)]
+    code = sweep.main(args)
+    out = capsys.readouterr().out
+    assert code == 0 and not built
+    assert "prior_strength: 1 problem file(s) missing" in out and "bar_clamp" in out
+    assert not (tmp_path / "prior_strength").exists()
+
+
 def test_catalog_names_resolve_in_catalogue_order():
     catalog = pytest.importorskip("precompute.catalog")
     got = sweep._resolve_names(["C3", "dexnet_adv", "bar_clamp"], catalog)
