@@ -11,6 +11,7 @@ from __future__ import annotations
 import functools
 import json
 import os
+import stat
 import types
 from pathlib import Path
 
@@ -522,3 +523,16 @@ def test_catalog_names_resolve_in_catalogue_order():
     for name in sweeps.EXPERIMENTS:
         mod = sweeps.get(name)
         sweep._resolve_names(list(mod.OBJECTS) + list(mod.SMOKE_OBJECTS), catalog)
+
+
+def test_result_files_are_readable_by_others(tmp_path):
+    old = os.umask(0o022)
+    try:
+        p = results.atomic_write_parquet(
+            pd.DataFrame({"a": [1]}), tmp_path / "t.parquet"
+        )
+        j = results.atomic_write_json({"a": 1}, tmp_path / "m.json")
+    finally:
+        os.umask(old)
+    for f in (p, j):
+        assert stat.S_IMODE(os.stat(f).st_mode) == 0o644
