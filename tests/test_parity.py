@@ -58,6 +58,20 @@ def reference_result(name: str) -> dict[str, np.ndarray]:
     return flat
 
 
+def _ks(a, b) -> float:
+    """Two-sample KS p-value of two samples brought to one representation.
+
+    Final gaps take a few values many times (one per grasp the recommendation can
+    end on); the engine computes them in float32 and the reference in float64, so
+    the same atom sits at two values one float32 ulp apart, which alone makes the
+    empirical CDFs differ by the atom's mass. Both sides are rounded to 1e-6 in
+    float64 first (far below any difference between two grasps' gaps).
+    """
+    a = np.round(np.asarray(a, np.float64), 6)
+    b = np.round(np.asarray(b, np.float64), 6)
+    return stats.ks_2samp(a, b).pvalue
+
+
 def _welch(a, b, what):
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     if np.ptp(a) == 0 and np.ptp(b) == 0:
@@ -74,7 +88,7 @@ LEARNERS = ("borges_100", "borges_2000", "legs_no_as", "legs", "tql")
 def test_parity_in_distribution(name):
     e, r = engine_result(name), reference_result(name)
     assert e["final_gap"].size >= 200 and r["final_gap"].size >= 200
-    p = stats.ks_2samp(e["final_gap"], r["final_gap"]).pvalue
+    p = _ks(e["final_gap"], r["final_gap"])
     assert p > ALPHA, f"final gap distributions differ (KS p = {p:.2g})"
     _welch(e["final_gap"], r["final_gap"], "final gap")
     _welch(
@@ -165,6 +179,6 @@ def test_parity_unusual_hyperparameters(name):
     )  # fmt: skip
     r = {f: np.asarray(getattr(r, f)).reshape(-1) for f in ("final_gap", "successes",
          "distinct_grasps", "replacements")}  # fmt: skip
-    assert stats.ks_2samp(e["final_gap"], r["final_gap"]).pvalue > ALPHA
+    assert _ks(e["final_gap"], r["final_gap"]) > ALPHA
     for f in ("final_gap", "successes", "distinct_grasps", "replacements"):
         _welch(e[f], r[f], f)
