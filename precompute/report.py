@@ -157,6 +157,28 @@ def _plt():
     return plt
 
 
+def _grid(plt, n: int, max_cols: int, width: float, height: float, extra: float):
+    """A figure with n panels in rows of at most ``max_cols``."""
+    cols = min(n, max_cols)
+    rows = math.ceil(n / cols)
+    fig, axes = plt.subplots(
+        rows,
+        cols,
+        figsize=(width * cols, height * rows + extra),
+        squeeze=False,
+        layout="constrained",
+    )
+    return fig, axes, rows, cols
+
+
+def _finish(plt, fig, title: str, fontsize: float, path: Path) -> Path:
+    fig.suptitle(title, fontsize=fontsize)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90, metadata={"Software": None})
+    plt.close(fig)
+    return path
+
+
 def pose_figure(pb, info, path: Path, panel: int = 150) -> Path:
     """The object in each stable pose with the best grasps of trial 0."""
     from matplotlib.collections import LineCollection
@@ -166,15 +188,7 @@ def pose_figure(pb, info, path: Path, panel: int = 150) -> Path:
     plt = _plt()
     mesh = render.load_mesh(info.mesh_path)
     P = int(pb.pose_valid.sum())
-    cols = min(P, 6)
-    rows = math.ceil(P / cols)
-    fig, axes = plt.subplots(
-        rows,
-        cols,
-        figsize=(1.6 * cols, 1.75 * rows + 0.35),
-        squeeze=False,
-        layout="constrained",
-    )
+    fig, axes, rows, cols = _grid(plt, P, 6, 1.6, 1.75, 0.35)
     cmap = plt.get_cmap("viridis")
     for s in range(rows * cols):
         ax = axes[s // cols, s % cols]
@@ -205,30 +219,18 @@ def pose_figure(pb, info, path: Path, panel: int = 150) -> Path:
         ax.set_title(
             f"pose {s}: λ={pb.landing[s]:.3f}\np*={p_star:.2f}, {len(ok)} grasps"
         )
-    fig.suptitle(
+    title = (
         f"{info.name} ({info.set}): {P} stable poses, 5 best grasps of trial 0 "
-        "(colour: ground-truth p, 0 purple … 1 yellow)",
-        fontsize=8,
+        "(colour: ground-truth p, 0 purple … 1 yellow)"
     )
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90, metadata={"Software": None})
-    plt.close(fig)
-    return path
+    return _finish(plt, fig, title, 8, path)
 
 
 def robustness_figure(problems: Sequence, set_name: str, path: Path) -> Path:
     """Histogram of ground-truth robustness per object (all trials and poses)."""
     plt = _plt()
     n = len(problems)
-    cols = min(n, 7)
-    rows = math.ceil(n / cols)
-    fig, axes = plt.subplots(
-        rows,
-        cols,
-        figsize=(1.7 * cols, 1.35 * rows + 0.6),
-        squeeze=False,
-        layout="constrained",
-    )
+    fig, axes, rows, cols = _grid(plt, n, 7, 1.7, 1.35, 0.6)
     bins = np.linspace(0.0, 1.0, 21)
     for i in range(rows * cols):
         ax = axes[i // cols, i % cols]
@@ -246,15 +248,11 @@ def robustness_figure(problems: Sequence, set_name: str, path: Path) -> Path:
             ax.set_ylabel("grasps", fontsize=7)
         if i // cols == rows - 1 or i + cols >= n:
             ax.set_xlabel("robustness p", fontsize=7)
-    fig.suptitle(
+    title = (
         f"{set_name}: ground-truth robustness of every reservoir grasp "
-        "(all trials and poses, log scale)",
-        fontsize=9,
+        "(all trials and poses, log scale)"
     )
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90, metadata={"Software": None})
-    plt.close(fig)
-    return path
+    return _finish(plt, fig, title, 9, path)
 
 
 # ------------------------------------------------------------------------- CLI
