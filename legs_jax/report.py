@@ -616,7 +616,7 @@ def _results_section(ctx: Mapping) -> list[str]:
     lines = [
         "## Results used",
         "",
-        "| experiment | status | objects | trials × rollouts | horizon | commit |",
+        "| experiment | status | objects | trials × rollouts | horizon | computed at |",
         "|:---|:---|---:|:---:|---:|:---|",
     ]
     smoke = []
@@ -631,9 +631,14 @@ def _results_section(ctx: Mapping) -> list[str]:
             continue
         man = res.manifest(exp)
         status = man.get("status", "no manifest")
-        git = man.get("git", {}) or {}
-        commit = str(git.get("commit") or "")[:10] or "—"
-        if git.get("dirty"):
+        # The commits the chunks were computed at (the manifest's own "git" is
+        # the commit at merge time); "modified": uncommitted changes then.
+        chunk_git = [
+            c.get("git") or {} for c in (man.get("chunks") or {}).values()
+        ] or [man.get("git", {}) or {}]
+        shas = sorted({str(g.get("commit") or "")[:10] for g in chunk_git} - {""})
+        commit = ", ".join(shas) or "—"
+        if any(g.get("dirty") for g in chunk_git):
             commit += " (modified)"
         if (man.get("config") or {}).get("smoke"):
             smoke.append(exp)
@@ -642,7 +647,13 @@ def _results_section(ctx: Mapping) -> list[str]:
         r = runs["rollout"].nunique() if "rollout" in runs else 0
         h = int(runs["horizon"].max()) if "horizon" in runs and len(runs) else 0
         lines.append(f"| {exp} | {status} | {n_obj} | {t} × {r} | {h} | {commit} |")
-    lines.append("")
+    lines += [
+        "",
+        '"computed at": the git commit(s) the chunks of an experiment ran at; '
+        '"(modified)": the working tree also held uncommitted changes then '
+        "(each manifest lists every chunk's commit and host).",
+        "",
+    ]
     if smoke:
         lines += [
             f"> **Warning:** {', '.join(smoke)} hold smoke-test results (toy "
