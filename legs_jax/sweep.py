@@ -1099,6 +1099,32 @@ def _prepare_dir(plan: ExperimentPlan, out: Path, overwrite: bool, leader: bool)
     return d, chash
 
 
+def _merged_without_chunks(plan: ExperimentPlan, out: Path) -> bool:
+    """The experiment's merged tables are complete and current (same
+    configuration, same problem files) but some chunk folders are gone, as in a
+    fresh clone of committed results: nothing needs recomputing."""
+    import json
+
+    d = _exp_dir(out, plan.name)
+    chunks_dir = d / "chunks"
+    if all(res.chunk_done(chunks_dir, c.id) for c in plan.chunks):
+        return False  # the ordinary path re-merges from the chunks
+    try:
+        with open(d / "manifest.json") as fh:
+            old = json.load(fh)
+    except (OSError, json.JSONDecodeError):
+        return False
+    files = old.get("problem_files") or {}
+    return (
+        old.get("status") == "complete"
+        and old.get("config_hash") == res.config_hash(plan.config())
+        and (d / "runs.parquet").is_file()
+        and all(
+            (files.get(o.name) or {}).get("sha256") == o.sha256 for o in plan.objects
+        )
+    )
+
+
 def _config_diff(old: Mapping[str, Any], new: Mapping[str, Any]) -> str:
     keys = sorted(set(old) | set(new))
     diff = [k for k in keys if res._canonical(old.get(k)) != res._canonical(new.get(k))]
@@ -1476,6 +1502,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         started = True
         t0 = time.perf_counter()
         statuses, sessions = {}, {}
+        kept = {p.name for p in plans if _merged_without_chunks(p, out)}
+        for name in kept:
+            _say(
+                f"{name}: complete results already in {_exp_dir(out, name)} "
+                "(chunk files not kept); nothing to run, --overwrite recomputes them",
+                a.quiet,
+            )
+            statuses[name] = "already complete"
+        plans = [p for p in plans if p.name not in kept]
         for plan in plans:
             sessions[plan.name] = run_experiment(
                 plan, out, devices=devices, dist=dist, quiet=a.quiet

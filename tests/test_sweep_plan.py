@@ -11,6 +11,7 @@ from __future__ import annotations
 import functools
 import json
 import os
+import shutil
 import stat
 import types
 from pathlib import Path
@@ -377,6 +378,33 @@ def test_cli_runs_and_writes_schema(tmp_path, probs, fake_engine, capsys):
     assert man["problem_files"]["alpha"]["sha256"] == sha
     assert man["versions"]["jax"] and man["sessions"][0]["devices"]["count"] >= 1
     assert "commit" in man["git"]
+
+
+def test_merged_results_without_chunks_are_kept(tmp_path, probs, fake_engine, capsys):
+    """A fresh clone of committed results (merged tables, no chunk folders) is not
+    recomputed; --overwrite recomputes it; other configurations still refuse."""
+    out = tmp_path / "out"
+    args = ["--experiment", "confidence", "--problems", *probs, "--out", str(out)]
+    args += ["--trials", "1", "--rollouts", "2", "--horizon", "100"]
+    code, err = _cli(args, capsys)
+    assert code == 0, err
+    d = out / "confidence"
+    before = (d / "runs.parquet").read_bytes()
+    shutil.rmtree(d / "chunks")
+    calls = len(fake_engine)
+    code = sweep.main([*args, "--compile-cache", "off"])  # not quiet: the message
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert len(fake_engine) == calls  # nothing ran
+    assert "confidence: complete results already in" in err
+    assert (d / "runs.parquet").read_bytes() == before
+    code, err = _cli([*args, "--overwrite"], capsys)
+    assert code == 0, err
+    assert len(fake_engine) > calls
+    assert (d / "runs.parquet").read_bytes() == before
+    shutil.rmtree(d / "chunks")
+    code, err = _cli([*args[:-2], "--horizon", "200"], capsys)
+    assert code == 2 and "different configuration" in err
 
 
 def test_cli_resume_after_interrupt_equals_uninterrupted(
