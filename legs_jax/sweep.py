@@ -1502,7 +1502,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         started = True
         t0 = time.perf_counter()
         statuses, sessions = {}, {}
-        kept = {p.name for p in plans if _merged_without_chunks(p, out)}
+        kept = [p.name for p in plans if _merged_without_chunks(p, out)]
         for name in kept:
             _say(
                 f"{name}: complete results already in {_exp_dir(out, name)} "
