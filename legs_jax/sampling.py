@@ -156,16 +156,7 @@ def _mt_try(d, c, w0, w1, rejected):
     # Standard normal from erf_inv of a uniform on (-1, 1).
     s = ((w0 >> jnp.uint32(8)).astype(jnp.float32) + 0.5) * jnp.float32(2.0**-23) - 1.0
     x = jnp.float32(math.sqrt(2.0)) * jax.lax.erf_inv(s)
-    u = _open_unit(w1)
-    w = c * x
-    ok_v = w > -1.0
-    lw = jnp.log1p(jnp.where(ok_v, w, 0.0))
-    # log acceptance threshold 0.5 x^2 + d - d v + d log v with v = (1 + w)^3,
-    # written so that the O(d) terms cancel analytically.
-    thr = 0.5 * x * x + d * (3.0 * (lw - w) - w * w * (3.0 + w))
-    ok = ok_v & (jnp.log(u) < thr)
-    v = (1.0 + w) * (1.0 + w) * (1.0 + w)
-    return jnp.where(ok, d * v, rejected)
+    return _mt_accept(d, c, x, _open_unit(w1), rejected)
 
 
 def _select_bit(word: jax.Array, rank: jax.Array) -> jax.Array:
@@ -366,6 +357,8 @@ def _mt_accept(d, c, x, u, rejected):
     w = c * x
     ok_v = w > -1.0
     lw = jnp.log1p(jnp.where(ok_v, w, 0.0))
+    # log acceptance threshold 0.5 x^2 + d - d v + d log v with v = (1 + w)^3,
+    # written so that the O(d) terms cancel analytically.
     thr = 0.5 * x * x + d * (3.0 * (lw - w) - w * w * (3.0 + w))
     ok = ok_v & (jnp.log(u) < thr)
     v = (1.0 + w) * (1.0 + w) * (1.0 + w)
