@@ -785,21 +785,9 @@ class _ProblemsMissing(Exception):
 
 def _missing_problems(names: Sequence[str]) -> list[str]:
     """Catalogue objects whose problem file is missing or out of date."""
-    from precompute import catalog as pcat
-    from precompute.build import (
-        BuildParams,
-        expected_hash,
-        is_up_to_date,
-        problem_path,
-        problems_dir,
-    )
+    import precompute
 
-    root, params = problems_dir(), BuildParams()
-    return [
-        i.name
-        for i in pcat.resolve(list(names))
-        if not is_up_to_date(problem_path(i, root), expected_hash(i, params))
-    ]
+    return [i.name for i in precompute.out_of_date(list(names))]
 
 
 def _catalog_problems(

@@ -6,7 +6,7 @@ problem files on demand. NumPy, trimesh and Embree only: no JAX here.
 """
 
 from . import catalog
-from .build import CODE_VERSION, BuildParams, build_problem, ensure
+from .build import CODE_VERSION, BuildParams, build_problem, ensure, out_of_date
 from .errors import PrecomputeError
 
 __all__ = [
@@ -16,4 +16,5 @@ __all__ = [
     "build_problem",
     "catalog",
     "ensure",
+    "out_of_date",
 ]

@@ -316,6 +316,24 @@ def expected_hash(info, params: BuildParams) -> str:
     return build_hash(file_sha256(info.mesh_path), info.units, info.name, params)
 
 
+def out_of_date(
+    names: Sequence[str],
+    *,
+    data_dir: Path | None = None,
+    params: BuildParams | None = None,
+) -> list:
+    """The catalogue objects among ``names`` (object or set names) whose problem
+    file is missing or out of date: what :func:`ensure` would build."""
+    root = Path(data_dir) if data_dir is not None else None
+    out = problems_dir(root)
+    params = (params or BuildParams()).check()
+    return [
+        i
+        for i in _catalog.resolve(list(names), root=root)
+        if not is_up_to_date(problem_path(i, out), expected_hash(i, params))
+    ]
+
+
 def ensure(
     names: Sequence[str],
     *,
@@ -330,13 +348,12 @@ def ensure(
     from .runner import build_many
 
     root = Path(data_dir) if data_dir is not None else None
-    infos = _catalog.resolve(list(names), root=root)
     out = problems_dir(root)
     params = (params or BuildParams()).check()
-    paths = {i.name: problem_path(i, out) for i in infos}
-    todo = [
-        i for i in infos if not is_up_to_date(paths[i.name], expected_hash(i, params))
-    ]
+    paths = {
+        i.name: problem_path(i, out) for i in _catalog.resolve(list(names), root=root)
+    }
+    todo = out_of_date(names, data_dir=root, params=params)
     if todo:
         build_many(
             todo,

@@ -68,7 +68,7 @@ def main(argv=None) -> int:
     from . import catalog
     from . import prior as _prior
     from .analysis import PAPER
-    from .build import problems_dir
+    from .build import problem_path, problems_dir
 
     ap = argparse.ArgumentParser(
         prog="python -m precompute calibrate",
@@ -89,7 +89,7 @@ def main(argv=None) -> int:
     root = a.problems if a.problems is not None else problems_dir()
     per_set = {}
     for set_name in catalog.SETS:
-        paths = [root / set_name / f"{i.name}.npz" for i in catalog.objects(set_name)]
+        paths = [problem_path(i, root) for i in catalog.objects(set_name)]
         paths = [p for p in paths if p.is_file()]
         if paths:
             per_set[set_name] = _load(paths)
