@@ -23,6 +23,8 @@ from typing import Any
 
 import numpy as np
 
+from legs_jax._files import public_mode
+
 __all__ = [
     "FORMAT_VERSION",
     "Problem",
@@ -255,9 +257,7 @@ def save(problem: Problem, path: str | os.PathLike) -> Path:
                 info.compress_type = zipfile.ZIP_DEFLATED
                 info.external_attr = 0o644 << 16
                 z.writestr(info, data, compresslevel=6)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600 files
+        public_mode(tmp)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

@@ -15,6 +15,7 @@ import numpy as np
 import pandas as pd
 
 from legs_jax import analysis as an
+from legs_jax._files import public_mode
 
 __all__ = [
     "Num",
@@ -570,9 +571,7 @@ def _write_text(path, text: str) -> None:
     try:
         with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
             fh.write(text)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600 files
+        public_mode(tmp)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

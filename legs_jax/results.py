@@ -57,6 +57,8 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from legs_jax._files import public_mode
+
 __all__ = [
     "CHUNK_META",
     "HPARAM_COLUMNS",
@@ -110,14 +112,6 @@ def sha256_file(path: str | os.PathLike) -> str:
 
 
 # -------------------------------------------------------------------- atomic I/O
-def _public_mode(path: str | os.PathLike) -> None:
-    """Give a temporary file the mode a plain ``open`` would (mkstemp makes 0600
-    files, which other users of a shared results folder could not read)."""
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(path, 0o666 & ~umask)
-
-
 def atomic_write_parquet(df: pd.DataFrame, path: str | os.PathLike) -> Path:
     """Write ``df`` (without its index) to ``path`` through a temporary file."""
     path = Path(path)
@@ -127,7 +121,7 @@ def atomic_write_parquet(df: pd.DataFrame, path: str | os.PathLike) -> Path:
     os.close(fd)
     try:
         pq.write_table(table, tmp)
-        _public_mode(tmp)
+        public_mode(tmp)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
@@ -144,7 +138,7 @@ def atomic_write_json(obj: Any, path: str | os.PathLike) -> Path:
         with os.fdopen(fd, "w") as fh:
             json.dump(_canonical(obj), fh, indent=1, sort_keys=True)
             fh.write("\n")
-        _public_mode(tmp)
+        public_mode(tmp)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
