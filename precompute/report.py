@@ -226,10 +226,13 @@ def pose_figure(pb, info, path: Path, panel: int = 150) -> Path:
     return _finish(plt, fig, title, 8, path)
 
 
-def robustness_figure(problems: Sequence, set_name: str, path: Path) -> Path:
-    """Histogram of ground-truth robustness per object (all trials and poses)."""
+def robustness_figure(
+    objects: Sequence[tuple[str, np.ndarray]], set_name: str, path: Path
+) -> Path:
+    """Histogram of ground-truth robustness per object (all trials and poses):
+    ``objects`` holds (name, robustness of every valid grasp) pairs."""
     plt = _plt()
-    n = len(problems)
+    n = len(objects)
     fig, axes, rows, cols = _grid(plt, n, 7, 1.7, 1.35, 0.6)
     bins = np.linspace(0.0, 1.0, 21)
     for i in range(rows * cols):
@@ -237,10 +240,9 @@ def robustness_figure(problems: Sequence, set_name: str, path: Path) -> Path:
         if i >= n:
             ax.set_axis_off()
             continue
-        pb = problems[i]
-        p = pb.robustness[pb.valid]
+        name, p = objects[i]
         ax.hist(p, bins=bins, color="#4c72b0", log=True)
-        ax.set_title(pb.name)
+        ax.set_title(name)
         ax.set_xlim(0, 1)
         ax.set_ylim(bottom=0.8)
         ax.tick_params(labelsize=6)
@@ -310,7 +312,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         except ProblemFileError as e:
             raise PrecomputeError(str(e)) from None
         rows.append(object_row(pb, info.set))
-        by_set.setdefault(info.set, []).append(pb)
+        # Only what the histogram needs, not the whole problem.
+        by_set.setdefault(info.set, []).append((pb.name, pb.robustness[pb.valid]))
         if not a.no_figures:
             pose_figure(
                 pb, info, a.out / "figures" / "poses" / info.set / f"{info.name}.png"
@@ -322,10 +325,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     md.write_text(_sets_markdown(sets))
     written.append(md)
     if not a.no_figures:
-        for set_name, problems in by_set.items():
+        for set_name, objects in by_set.items():
             written.append(
                 robustness_figure(
-                    problems, set_name, a.out / "figures" / f"robustness_{set_name}.png"
+                    objects, set_name, a.out / "figures" / f"robustness_{set_name}.png"
                 )
             )
     if not a.quiet:
