@@ -1088,9 +1088,10 @@ def _prepare_dir(plan: ExperimentPlan, out: Path, overwrite: bool, leader: bool)
 
 
 def _merged_without_chunks(plan: ExperimentPlan, out: Path) -> bool:
-    """The experiment's merged tables are complete and current (same
-    configuration, same problem files) but some chunk folders are gone, as in a
-    fresh clone of committed results: nothing needs recomputing."""
+    """The experiment's merged tables are complete and current (same problem
+    files; :func:`_prepare_dir` has already refused another configuration) but
+    some chunk folders are gone, as in a fresh clone of committed results:
+    nothing needs recomputing."""
     import json
 
     d = _exp_dir(out, plan.name)
@@ -1105,7 +1106,6 @@ def _merged_without_chunks(plan: ExperimentPlan, out: Path) -> bool:
     files = old.get("problem_files") or {}
     return (
         old.get("status") == "complete"
-        and old.get("config_hash") == res.config_hash(plan.config())
         and (d / "runs.parquet").is_file()
         and all(
             (files.get(o.name) or {}).get("sha256") == o.sha256 for o in plan.objects
