@@ -36,6 +36,7 @@ __all__ = [
     "arms_of",
     "bound_summary",
     "curve_summary",
+    "first_legs_rollout",
     "learning_curves",
     "object_gaps",
     "order_sets",
@@ -473,6 +474,20 @@ def curve_summary(lc: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["method", "variant", "final", "area"])
 
 
+def first_legs_rollout(active_set: pd.DataFrame) -> pd.DataFrame:
+    """The rows of LEGS's first grid point, trial and rollout (the one rollout
+    whose active sets are recorded)."""
+    a = active_set
+    if "method" in a.columns:
+        a = a[a["method"] == "legs"]
+    if "grid_index" in a.columns and len(a):
+        a = a[a["grid_index"] == a["grid_index"].min()]
+    for c in ("trial", "rollout"):
+        if c in a.columns and len(a):
+            a = a[a[c] == a[c].min()]
+    return a
+
+
 def active_set_trace(
     active_set: pd.DataFrame,
     obj: str,
@@ -491,14 +506,7 @@ def active_set_trace(
     of the pose's reservoir) when ``grasps`` is given.
     """
     _require(active_set, ["object", "step", "pose", "slot", "robustness"], "active_set")
-    a = active_set[active_set["object"] == obj]
-    if "method" in a.columns:
-        a = a[a["method"] == "legs"]
-    if "grid_index" in a.columns and len(a):
-        a = a[a["grid_index"] == a["grid_index"].min()]
-    for c in ("trial", "rollout"):
-        if c in a.columns and len(a):
-            a = a[a[c] == a[c].min()]
+    a = first_legs_rollout(active_set[active_set["object"] == obj])
     if a.empty:
         raise AnalysisError(f"active_set.parquet has no LEGS rows for {obj!r}")
     if pose is None:

@@ -665,10 +665,7 @@ def active_set_figure(
         res.table("case_study", "grasps") if res.has("case_study", "grasps") else None
     )
     if obj is None and len(act):
-        first = act
-        for c in ("trial", "rollout"):
-            if c in first.columns:
-                first = first[first[c] == first[c].min()]
+        first = an.first_legs_rollout(act)
         changed = first.groupby(["object", "pose"], sort=False)["grasp"].nunique()
         obj = str(changed.groupby(level=0, sort=False).max().idxmax())
     if not (act["object"] == obj).any():

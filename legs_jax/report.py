@@ -1015,12 +1015,12 @@ def _discussion(ctx: Mapping) -> list[str]:
         rows = []
         for s in an.order_sets(t1["set"]):
             for m in ("dexnet", "k100_ub"):
-                r = t1[(t1["set"] == s) & (t1["method"] == m) & (t1["variant"] == "")]
+                mean = _row_mean(t1, s, m)
                 paper = an.PAPER_TABLE1.get(s, {}).get(m)
-                if len(r) and paper:
+                if mean is not None and paper:
                     rows.append(
                         f"{an.arm_label(m)} on {an.SET_LABELS.get(s, s)}: "
-                        f"{_f(float(r['mean'].iloc[0]))} (paper {paper[0]:.2f})"
+                        f"{_f(mean)} (paper {paper[0]:.2f})"
                     )
         if rows:
             L += [
