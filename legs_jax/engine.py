@@ -588,6 +588,18 @@ def _default_batch_size(method: str, platform: str, cfg: Config) -> int:
     return 2048 if method in _DENSE else 16384
 
 
+def _batch_rows(rows_per_device: int, largest: int, quantum: int) -> int:
+    """Rollouts per device per mini-batch: the work split evenly into as few
+    mini-batches of at most ``largest`` as it takes, each rounded up to a multiple
+    of ``quantum`` (fewer distinct shapes to compile). A chunk of 100 rollouts on
+    two devices at 16 a batch runs as 4 x 13 per device (4 % padding) rather than
+    4 x 16 (28 %)."""
+    n_batches = -(-rows_per_device // largest)
+    per = -(-rows_per_device // n_batches)
+    per = -(-per // quantum) * quantum
+    return max(1, min(per, -(-largest // quantum) * quantum))
+
+
 @functools.lru_cache(maxsize=64)
 def compiled(
     method: str,
@@ -821,8 +833,9 @@ def run(
     for (k_val, n_val), gs in groups.items():
         cfg = Config(num_poses=P, num_grasps=K, k=int(k_val), n=int(n_val))
         sel = np.flatnonzero(np.isin(g_i, gs))
-        per_dev = batch_size or _default_batch_size(method, platform, cfg)
-        per_dev = min(per_dev, 1 << max(0, (-(-sel.size // n_dev) - 1).bit_length()))
+        largest = batch_size or _default_batch_size(method, platform, cfg)
+        quantum = 1 if batch_size or largest <= 64 else 16
+        per_dev = _batch_rows(-(-sel.size // n_dev), largest, quantum)
         Bc = per_dev * n_dev
         fn = compiled(
             method, cfg, H, record_every, check_every,

@@ -309,3 +309,21 @@ def test_invalid_batch_is_refused():
     with pytest.raises(ConfigError, match="ProblemBatch"):
         engine.run(make_problem(0), "legs", object_ids=[1])
     assert issubclass(ConfigError, ValueError)
+
+
+@pytest.mark.parametrize(
+    "rows,largest,quantum,want",
+    [
+        (50, 16, 1, 13),  # 4 batches of 13 (52 slots for 50), not 4 x 16
+        (16, 16, 1, 16),
+        (5, 16, 1, 5),
+        (350, 512, 16, 352),
+        (600, 512, 16, 304),  # 2 x 304 = 608 slots, not 2 x 512
+        (1, 512, 16, 16),
+    ],
+)
+def test_batch_rows_split_work_evenly(rows, largest, quantum, want):
+    per = engine._batch_rows(rows, largest, quantum)
+    assert per == want
+    n_batches = -(-rows // per)
+    assert per <= max(largest, quantum) and n_batches == -(-rows // largest)
