@@ -22,7 +22,12 @@ How the samplers are built (all plain ``jnp`` ops, so XLA fuses them):
 - Gamma(a), 0 < a < 1: the boost G(a) = G(a + 1) * U^(1/a), in log space.
 - Beta(a, b) = G_a / (G_a + G_b), in one fused pass: try 0 of the two gammas takes
   its two normals from one Box-Muller pair; elements with a rejected gamma (1-6 %)
-  are redrawn in the buffer, tries t >= 1 with a normal from ``erf_inv``.
+  are packed into a buffer and finished there (tries t >= 1 with a normal from
+  ``erf_inv``, one try per loop iteration until every gamma is accepted).
+- On CPU most of the cost of the retries was not the tries but how XLA compiled
+  them: the packed indices were recomputed inside every gather that used them
+  (:func:`_materialized` computes them once), and the bulk pass splits into many
+  passes when its result has more than one consumer (it feeds one loop only).
 - Beta quantiles: safeguarded Newton-Halley on a float32 regularised incomplete beta
   function whose log prefactor is computed from Stirling's series (accurate for
   shapes in the thousands, where ``lgamma`` in float32 is not).
@@ -190,14 +195,31 @@ def _exclusive_prefix_sum(counts: jax.Array) -> jax.Array:
     return (within + blocks[:, None]).reshape(-1)[:n].astype(jnp.int32)
 
 
-def _pending_slots(pending: jax.Array, capacity: int) -> jax.Array:
+def _materialized(x: jax.Array, bound) -> jax.Array:
+    """``x`` (int32, values in [0, bound]) computed once into a buffer of its own.
+
+    XLA would otherwise fuse the computation of ``x`` into each of its consumers
+    (here several gathers) and run it once per consumer. A while loop of one
+    iteration (its trip count unknown to the compiler) returns it unchanged.
+    """
+
+    def body(state):
+        i, x = state
+        return i + 1, jnp.where(x > bound + i, 0, x)
+
+    _, x = jax.lax.while_loop(lambda s: s[0] < 1, body, (jnp.min(x) // (bound + 1), x))
+    return x
+
+
+def _pending_slots(pending: jax.Array, capacity: int, *, with_count: bool = False):
     """Indices of the first ``capacity`` True entries of ``pending``.
 
-    [M] bool -> [capacity] int32, padded with ``M``. The mask is packed into 32-bit
-    words; prefix sums run over the M / 32 word counts. The word of slot s is the
-    number of words whose pending entries all come before s, counted with a
-    histogram of the words' ends and a prefix sum over the slots; the rank within
-    the word gives the bit.
+    [M] bool -> [capacity] int32, padded with ``M`` (and, ``with_count``, the
+    number of True entries, which may exceed ``capacity``). The mask is packed
+    into 32-bit words; prefix sums run over the M / 32 word counts. The word of
+    slot s is the number of words whose pending entries all come before s, counted
+    with a histogram of the words' ends and a prefix sum over the slots; the rank
+    within the word gives the bit.
     """
     (m,) = pending.shape
     nw = -(-m // 32)
@@ -212,7 +234,9 @@ def _pending_slots(pending: jax.Array, capacity: int) -> jax.Array:
     valid = slot < before[-1] + counts[-1]
     block = jnp.minimum(block, nw - 1)  # (only past the last pending entry)
     pos = block * 32 + _select_bit(words[block], slot - before[block])
-    return jnp.where(valid, pos, m)
+    idx = jnp.where(valid, pos, m)
+    idx = _materialized(idx, m)
+    return (idx, before[-1] + counts[-1]) if with_count else idx
 
 
 def _plain_counters(stream: int):
@@ -411,10 +435,10 @@ def beta_rows(keys: jax.Array, a: jax.Array, b: jax.Array) -> jax.Array:
     Try 0 of the two gammas runs in bulk, with the two normals of one Box-Muller
     pair (cheaper than two inverse error functions) and the whole draw in one
     fused pass. The few elements where a gamma was rejected (1-5 %) are packed
-    into a buffer and redrawn there from scratch with more tries per gamma (try
-    t >= 1: its own pair of words, normal from ``erf_inv``), until both gammas
-    have an accepted try; an element always ends with the first accepted try of
-    each gamma, whatever the batch holds. Shapes below 1 use the boost (an extra
+    into a buffer and redrawn there from scratch, try after try (try t >= 1: its
+    own pair of words, normal from ``erf_inv``), until both gammas have an
+    accepted try; an element always ends with the first accepted try of each
+    gamma, whatever the batch holds. Shapes below 1 use the boost (an extra
     uniform per gamma), in log space.
 
     Args:
@@ -435,7 +459,22 @@ def beta_rows(keys: jax.Array, a: jax.Array, b: jax.Array) -> jax.Array:
     )
 
 
-def _beta_rows(k0, k1, a, b, *, boost: bool, tries_per_round=3, capacity=None):
+def _gamma_pair_try(r0, r1, col, t, dsa, csa, dsb, csb, ga, gb):
+    """Try t >= 1 of both gammas of Beta elements (counters ``col``), kept only
+    where that gamma is still pending (negative)."""
+    tt = jnp.asarray(t, jnp.uint32)
+    wa0, wa1 = threefry2x32(
+        r0, r1, col, jnp.uint32(_STREAM_GAMMA_A << _STREAM_SHIFT) + tt
+    )
+    wb0, wb1 = threefry2x32(
+        r0, r1, col, jnp.uint32(_STREAM_GAMMA_B << _STREAM_SHIFT) + tt
+    )
+    ga = jnp.where(ga < 0.0, _mt_try(dsa, csa, wa0, wa1, jnp.float32(-1.0)), ga)
+    gb = jnp.where(gb < 0.0, _mt_try(dsb, csb, wb0, wb1, jnp.float32(-1.0)), gb)
+    return ga, gb
+
+
+def _beta_rows(k0, k1, a, b, *, boost: bool, capacity=None):
     rows, n = a.shape
     total = rows * n
     da, ca = _shape_dc(a)
@@ -450,12 +489,8 @@ def _beta_rows(k0, k1, a, b, *, boost: bool, tries_per_round=3, capacity=None):
     a_flat, b_flat = a.reshape(-1), b.reshape(-1)
     key_pairs = jnp.concatenate([k0, k1], axis=1)  # [B, 2]
 
-    def cond(state):
-        return jnp.any(state[0] < 0.0)
-
-    def body(state):
-        x, rnd = state
-        idx = _pending_slots(x < 0.0, capacity)  # [C], total where unused
+    def redraw(x, idx):
+        """Finish the elements ``idx`` (``total`` where unused) from scratch."""
         idx_c = jnp.minimum(idx, total - 1)
         row = idx_c // n
         col = (idx_c - row * n).astype(jnp.uint32)
@@ -464,30 +499,32 @@ def _beta_rows(k0, k1, a, b, *, boost: bool, tries_per_round=3, capacity=None):
         sa, sb = a_flat[idx_c], b_flat[idx_c]
         dsa, csa = _shape_dc(sa)
         dsb, csb = _shape_dc(sb)
-        g0a, g0b = _beta_first_tries(r0, r1, col, dsa, csa, dsb, csb)
-        # Round r redraws tries 0 .. L - 1 of both gammas, L = 1 + T (r + 1): a
-        # function of the round alone, so an element that waited for a slot
-        # still ends with the first accepted try of each gamma.
+        ga, gb = _beta_first_tries(r0, r1, col, dsa, csa, dsb, csb)
 
-        def one_try(t, gs):
-            ga, gb = gs
-            tt = t.astype(jnp.uint32)
-            wa0, wa1 = threefry2x32(
-                r0, r1, col, jnp.uint32(_STREAM_GAMMA_A << _STREAM_SHIFT) + tt
-            )
-            wb0, wb1 = threefry2x32(
-                r0, r1, col, jnp.uint32(_STREAM_GAMMA_B << _STREAM_SHIFT) + tt
-            )
-            ga = jnp.where(ga < 0.0, _mt_try(dsa, csa, wa0, wa1, jnp.float32(-1.0)), ga)
-            gb = jnp.where(gb < 0.0, _mt_try(dsb, csb, wb0, wb1, jnp.float32(-1.0)), gb)
-            return ga, gb
+        # Try t of the gammas still rejected, until every gamma of the buffer has
+        # its first accepted try. (A loop, not unrolled: its state is a plain
+        # [C] array, so that XLA emits vector code for the tries.)
+        def pending(state):
+            return jnp.any((state[1] < 0.0) | (state[2] < 0.0))
 
-        last = 1 + tries_per_round * (rnd + 1)
-        ga, gb = jax.lax.fori_loop(1, last, one_try, (g0a, g0b))
+        def one_try(state):
+            t, ga, gb = state
+            ga, gb = _gamma_pair_try(r0, r1, col, t, dsa, csa, dsb, csb, ga, gb)
+            return t + 1, ga, gb
+
+        _, ga, gb = jax.lax.while_loop(pending, one_try, (jnp.int32(1), ga, gb))
         xs = _beta_value(r0, r1, col, sa, sb, ga, gb, boost)
-        return x.at[idx].set(xs, mode="drop"), rnd + 1
+        return x.at[idx].set(xs, mode="drop")
 
-    x, _ = jax.lax.while_loop(cond, body, (x, jnp.int32(0)))
+    # Passes over the buffer until every element is done; the first pass always
+    # runs (its loop state keeps the bulk pass a single fusion: XLA splits it
+    # when its result has more than one consumer).
+    def one_pass(state):
+        x, _ = state
+        idx, count = _pending_slots(x < 0.0, capacity, with_count=True)
+        return redraw(x, idx), count - capacity
+
+    x, _ = jax.lax.while_loop(lambda s: s[1] > 0, one_pass, (x, jnp.int32(1)))
     return x.reshape(rows, n)
 
 

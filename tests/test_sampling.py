@@ -170,10 +170,12 @@ def test_beta_retry_schedule_does_not_change_values(boost):
 def test_pending_slots_are_the_first_true_entries(total, rate, capacity):
     """The packed slot search returns np.flatnonzero(mask)[:capacity], padded."""
     mask = np.random.default_rng(total).uniform(size=total) < rate
-    got = np.asarray(jax.jit(sampling._pending_slots, static_argnums=1)(mask, capacity))
+    fn = jax.jit(lambda m: sampling._pending_slots(m, capacity, with_count=True))
+    got, count = (np.asarray(x) for x in fn(mask))
     want = np.flatnonzero(mask)[:capacity]
     want = np.concatenate([want, np.full(capacity - len(want), total)])
     np.testing.assert_array_equal(got, want)
+    assert int(count) == int(mask.sum())  # may exceed the capacity
 
 
 def test_batch_invariance_bit_identical():
