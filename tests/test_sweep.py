@@ -187,7 +187,16 @@ def test_four_cpu_devices_equal_one(tmp_path):
 
 
 def test_ctrl_c_stops_cleanly_and_says_what_was_kept(tmp_path):
-    args = ["--smoke", "--experiment", "main", "--out", str(tmp_path)]
+    # A long horizon keeps the sweep running well after its first chunk is done.
+    args = [
+        "--smoke",
+        "--experiment",
+        "main",
+        "--horizon",
+        "2000",
+        "--out",
+        str(tmp_path),
+    ]
     proc = subprocess.Popen(
         [sys.executable, "-m", "legs_jax.sweep", *args],
         cwd=ROOT,
