@@ -595,9 +595,8 @@ def _batch_rows(rows_per_device: int, largest: int, quantum: int) -> int:
     two devices at 16 a batch runs as 4 x 13 per device (4 % padding) rather than
     4 x 16 (28 %)."""
     n_batches = -(-rows_per_device // largest)
-    per = -(-rows_per_device // n_batches)
-    per = -(-per // quantum) * quantum
-    return max(1, min(per, -(-largest // quantum) * quantum))
+    per = -(-rows_per_device // n_batches)  # <= largest, so no clamp is needed
+    return -(-per // quantum) * quantum
 
 
 @functools.lru_cache(maxsize=64)
