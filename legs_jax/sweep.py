@@ -139,6 +139,10 @@ class Chunk:
     rollouts: int  # G x O x T x R of the chunk
     work: float  # estimated cost (progress bar units)
     hash: str
+    # What each of its rollouts depends on besides (object, trial, rollout): two
+    # chunks with equal signatures compute identical rows for the pairs they share
+    # (see :func:`_reuse_chunk`).
+    signature: str = ""
 
 
 @dataclasses.dataclass
@@ -353,6 +357,19 @@ def plan_chunks(
                     "trials": list(trials),
                     "pad": [P, K],
                 }
+                signature = {
+                    "results_version": RESULTS_VERSION,
+                    "seed": cfg.seed,
+                    "method": arm.method,
+                    "grid": arm.grid_dicts(),
+                    "rollouts": cfg.rollouts,
+                    "horizon": cfg.horizon,
+                    "record_every": cfg.record_every,
+                    "check_every": cfg.check_every if record_checks else None,
+                    "record_checks": record_checks,
+                    "record_active_set": record_act,
+                    "pad": [P, K],
+                }
                 chunks.append(
                     Chunk(
                         id=_chunk_id(arm, names, trials),
@@ -366,6 +383,7 @@ def plan_chunks(
                         rollouts=n_roll,
                         work=n_roll * w,
                         hash=res.config_hash(spec),
+                        signature=res.config_hash(signature),
                     )
                 )
     ids = [c.id for c in chunks]
@@ -631,6 +649,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="delete existing results of the selected experiments and start over",
     )
     out.add_argument(
+        "--no-reuse",
+        action="store_true",
+        help="compute every chunk, even when another experiment in OUT already "
+        "holds identical rollouts made by this commit (by default they are copied: "
+        "case_study and early_stopping repeat runs of main)",
+    )
+    out.add_argument(
         "--devices",
         type=_positive_int,
         metavar="N",
@@ -874,6 +899,8 @@ def _portable_path(path: str | os.PathLike) -> str:
 
 
 def _git_commit() -> dict[str, Any]:
+    """The commit of the code and whether tracked files other than ``results/``
+    (which a sweep rewrites) differ from it."""
     root = Path(__file__).resolve().parent.parent
     try:
         commit = subprocess.run(
@@ -886,7 +913,15 @@ def _git_commit() -> dict[str, Any]:
         if commit.returncode != 0:
             return {"commit": None}
         dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
+            [
+                "git",
+                "status",
+                "--porcelain",
+                "--untracked-files=no",
+                "--",
+                ".",
+                ":(exclude)results",
+            ],
             cwd=root,
             capture_output=True,
             text=True,
@@ -978,6 +1013,95 @@ def _run_chunk(
         robustness=batch.robustness[:, list(chunk.trials)],
     )
     return res.chunk_tables(result, ctx), np.asarray(result.curve_steps).tolist()
+
+
+def _object_stamp(o: ObjectEntry) -> tuple[str, int, str]:
+    return (o.name, int(o.object_id), o.sha256)
+
+
+class _Donors:
+    """Finished chunks of the other experiments in the output folder whose rollouts
+    can stand in for this experiment's: same chunk signature (method, hyperparameter
+    grid, seed, sizes, what is recorded), same problem file, same trial, made by
+    the same clean commit as the running code. case_study and early_stopping repeat
+    runs of main this way; the copied rows are the rows a computation would give,
+    because a rollout's keys depend only on (seed, object, trial, rollout)."""
+
+    def __init__(self, out: Path, exclude: str, git: Mapping[str, Any]):
+        import json
+
+        self.index: dict[tuple[str, tuple[str, int, str], int], Path] = {}
+        if not git.get("commit") or git.get("dirty", True):
+            return
+        for path in sorted(out.glob(f"*/chunks/*/{res.CHUNK_META}")):
+            if path.parent.parent.parent.name == exclude:
+                continue
+            try:
+                with open(path) as fh:
+                    meta = json.load(fh)
+            except (OSError, json.JSONDecodeError):
+                continue
+            if meta.get("git") != dict(git) or not meta.get("signature"):
+                continue
+            for stamp in meta.get("object_stamps") or ():
+                for t in meta.get("trials") or ():
+                    key = (meta["signature"], tuple(stamp), int(t))
+                    self.index.setdefault(key, path.parent)
+
+    def __bool__(self) -> bool:
+        return bool(self.index)
+
+    def find(self, signature: str, stamp: tuple[str, int, str], trial: int):
+        return self.index.get((signature, stamp, trial))
+
+
+def _reuse_chunk(plan: ExperimentPlan, chunk: Chunk, donors: _Donors):
+    """The tables of ``chunk`` copied from donor chunks that hold every one of its
+    (object, trial) pairs, or None when some pair has no donor. Chunks that record
+    active sets are always computed (no experiment records them twice)."""
+    import json
+
+    import pandas as pd
+
+    if chunk.record_active_set or not chunk.signature or not donors:
+        return None
+    sources: dict[Path, None] = {}
+    for i in chunk.objects:
+        for t in chunk.trials:
+            d = donors.find(chunk.signature, _object_stamp(plan.objects[i]), t)
+            if d is None:
+                return None
+            sources[d] = None
+    names = [plan.objects[i].name for i in chunk.objects]
+    arm = plan.arms[chunk.arm]
+    parts: dict[str, list[pd.DataFrame]] = {}
+    curve_steps = None
+    try:
+        for d in sources:
+            with open(d / res.CHUNK_META) as fh:
+                steps = json.load(fh)["curve_steps"]
+            if curve_steps is not None and steps != curve_steps:
+                return None
+            curve_steps = steps
+            for t in ("runs", "checks"):
+                f = d / f"{t}.parquet"
+                if not f.is_file():
+                    continue
+                df = pd.read_parquet(f)
+                df = df[df["object"].isin(names) & df["trial"].isin(chunk.trials)]
+                df = df.copy()
+                df["experiment"] = plan.name
+                df["variant"] = arm.variant
+                parts.setdefault(t, []).append(df)
+    except (OSError, KeyError, ValueError):
+        return None  # a donor vanished or is unreadable: compute instead
+    tables = {t: pd.concat(v, ignore_index=True) for t, v in parts.items()}
+    if "runs" not in tables or len(tables["runs"]) != chunk.rollouts:
+        return None
+    if chunk.record_checks and "checks" not in tables:
+        return None
+    origin = [f"{d.parent.parent.name}/{d.name}" for d in sources]
+    return tables, curve_steps, origin
 
 
 class _Progress:
@@ -1146,6 +1270,7 @@ def _write_manifest(
                 k: m.get(k)
                 for k in (
                     "wall_s",
+                    "reused_from",
                     "rollouts",
                     "device",
                     "host",
@@ -1299,8 +1424,12 @@ def run_experiment(
     devices,
     dist: _Dist,
     quiet: bool,
+    reuse: bool = True,
 ) -> dict[str, Any]:
     """Run this process's missing chunks of one experiment.
+
+    With ``reuse``, chunks whose rollouts another experiment in ``out`` has
+    already computed (:class:`_Donors`) are copied from there instead.
 
     Returns the session record for the manifest; raises KeyboardInterrupt after
     saying what was kept.
@@ -1327,28 +1456,72 @@ def run_experiment(
     todo = [c for c in mine if not res.chunk_done(chunks_dir, c.id)]
     # Work order: objects outer, arms inner, so loaded problems are reused.
     todo.sort(key=lambda c: (c.objects[0], c.trials[0], c.arm))
-    done_before = len(plan.chunks) - sum(
-        1 for c in plan.chunks if not res.chunk_done(chunks_dir, c.id)
-    )
-    if todo:
-        _say(
-            f"{plan.name}: {len(todo)} chunk(s) to run ({done_before} of "
-            f"{len(plan.chunks)} already done), {sum(c.rollouts for c in todo)} "
-            f"rollouts on {len(devices)} {devices[0].device_kind} device(s)",
-            quiet,
-        )
-    bar = _Progress(
-        sum(c.work for c in todo),
-        sum(c.rollouts for c in todo),
-        quiet or not todo,
-        plan.name,
-    )
-    cache = _ProblemCache()
     git = _git_commit()
     session["git"] = git
     t_session = time.perf_counter()
-    computed = 0
+    computed = reused = 0
+    bar = None
+
+    def meta_of(c: Chunk, curve_steps, wall: float, **extra) -> dict[str, Any]:
+        return {
+            "id": c.id,
+            "hash": c.hash,
+            "signature": c.signature,
+            "experiment": plan.name,
+            "arm": plan.arms[c.arm].label,
+            "objects": [plan.objects[i].name for i in c.objects],
+            "object_stamps": [_object_stamp(plan.objects[i]) for i in c.objects],
+            "trials": list(c.trials),
+            "rollouts": c.rollouts,
+            "curve_steps": curve_steps,
+            "wall_s": wall,
+            "device": _device_info(devices),
+            "host": socket.gethostname(),
+            "process_id": dist.process_id,
+            "git": git,
+            "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            **extra,
+        }
+
     try:
+        if todo and reuse:
+            donors = _Donors(out, plan.name, git)
+            left, origins = [], set()
+            for c in todo:
+                t0 = time.perf_counter()
+                got = _reuse_chunk(plan, c, donors)
+                if got is None:
+                    left.append(c)
+                    continue
+                tables, curve_steps, origin = got
+                meta = meta_of(
+                    c, curve_steps, time.perf_counter() - t0, reused_from=origin
+                )
+                res.write_chunk(chunks_dir, c.id, tables, meta)
+                origins.update(o.split("/")[0] for o in origin)
+                reused += 1
+            if reused:
+                _say(
+                    f"{plan.name}: {reused} chunk(s) copied from identical rollouts "
+                    f"of {', '.join(sorted(origins))} (--no-reuse computes them)",
+                    quiet,
+                )
+            todo = left
+        done_before = sum(1 for c in plan.chunks if res.chunk_done(chunks_dir, c.id))
+        if todo:
+            _say(
+                f"{plan.name}: {len(todo)} chunk(s) to run ({done_before} of "
+                f"{len(plan.chunks)} already done), {sum(c.rollouts for c in todo)} "
+                f"rollouts on {len(devices)} {devices[0].device_kind} device(s)",
+                quiet,
+            )
+        bar = _Progress(
+            sum(c.work for c in todo),
+            sum(c.rollouts for c in todo),
+            quiet or not todo,
+            plan.name,
+        )
+        cache = _ProblemCache()
         for c in todo:
             if res.chunk_done(chunks_dir, c.id):  # finished by another process
                 bar.skip(c.work)
@@ -1358,32 +1531,18 @@ def run_experiment(
             tables, curve_steps = _run_chunk(
                 plan, c, cache, devices, _engine_progress(bar, c.rollouts)
             )
-            wall = time.perf_counter() - t0
-            meta = {
-                "id": c.id,
-                "hash": c.hash,
-                "experiment": plan.name,
-                "arm": plan.arms[c.arm].label,
-                "objects": [plan.objects[i].name for i in c.objects],
-                "trials": list(c.trials),
-                "rollouts": c.rollouts,
-                "curve_steps": curve_steps,
-                "wall_s": wall,
-                "device": _device_info(devices),
-                "host": socket.gethostname(),
-                "process_id": dist.process_id,
-                "git": git,
-                "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-            }
+            meta = meta_of(c, curve_steps, time.perf_counter() - t0)
             res.write_chunk(chunks_dir, c.id, tables, meta)
             computed += 1
             bar.end_chunk(c.rollouts)
     except KeyboardInterrupt:
-        bar.close()
+        if bar is not None:
+            bar.close()
         n_done = sum(1 for c in plan.chunks if res.chunk_done(chunks_dir, c.id))
         session["ended"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
         session["wall_s"] = time.perf_counter() - t_session
         session["chunks_computed"] = computed
+        session["chunks_reused"] = reused
         if dist.leader:
             _write_manifest(plan, d, "interrupted", session)
         _say(
@@ -1396,6 +1555,7 @@ def run_experiment(
     session["ended"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
     session["wall_s"] = time.perf_counter() - t_session
     session["chunks_computed"] = computed
+    session["chunks_reused"] = reused
     return session
 
 
@@ -1501,7 +1661,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         plans = [p for p in plans if p.name not in kept]
         for plan in plans:
             sessions[plan.name] = run_experiment(
-                plan, out, devices=devices, dist=dist, quiet=a.quiet
+                plan,
+                out,
+                devices=devices,
+                dist=dist,
+                quiet=a.quiet,
+                reuse=not a.no_reuse,
             )
             if dist.num_processes == 1:
                 statuses[plan.name] = finish_experiment(

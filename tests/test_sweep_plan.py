@@ -564,3 +564,83 @@ def test_result_files_are_readable_by_others(tmp_path):
         os.umask(old)
     for f in (p, j):
         assert stat.S_IMODE(os.stat(f).st_mode) == 0o644
+
+
+# ------------------------------------------------------------------------ reuse
+_CLEAN = {"commit": "c0ffee" * 6 + "c0ff", "dirty": False}
+
+
+def test_identical_rollouts_are_copied_from_another_experiment(
+    tmp_path, probs, fake_engine, capsys, monkeypatch
+):
+    """early_stopping repeats main's LEGS runs (same keys, same checks): with a
+    clean commit they are copied, not computed, and the tables are byte-identical
+    to computing them; chunks that record active sets (case_study's LEGS) still
+    run; a dirty tree, another commit or --no-reuse computes everything."""
+    monkeypatch.setattr(sweep, "_git_commit", lambda: dict(_CLEAN))
+    base = ["--problems", *probs, "--trials", "2", "--rollouts", "2"]
+    base += ["--horizon", "200", "--methods", "legs", "tql"]
+    exps = ["--experiment", "main", "case_study", "early_stopping"]
+
+    code, err = _cli(
+        [*base, *exps, "--out", str(tmp_path / "ref"), "--no-reuse"], capsys
+    )
+    assert code == 0, err
+    computed_all = len(fake_engine)
+
+    fake_engine.clear()
+    out = tmp_path / "res"
+    code, err = _cli([*base, *exps, "--out", str(out)], capsys)
+    assert code == 0, err
+    ref = _read_all(tmp_path / "ref")
+    assert _read_all(out) == ref and any("early_stopping" in k for k in ref)
+    es = json.loads((out / "early_stopping/manifest.json").read_text())
+    assert es["sessions"][-1]["chunks_computed"] == 0
+    assert es["sessions"][-1]["chunks_reused"] == es["chunks_total"] > 0
+    assert all(c["reused_from"] for c in es["chunks"].values())
+    assert all(
+        r.startswith("main/") for c in es["chunks"].values() for r in c["reused_from"]
+    )
+    cs = json.loads((out / "case_study/manifest.json").read_text())
+    legs = [c for c in cs["chunks"] if c.startswith("legs__")]
+    tql = [c for c in cs["chunks"] if c.startswith("tql__")]
+    assert legs and tql
+    assert all(not cs["chunks"][c]["reused_from"] for c in legs)  # active sets
+    assert all(cs["chunks"][c]["reused_from"] for c in tql)
+    assert len(fake_engine) == computed_all - es["chunks_total"] - len(tql)
+
+    # Donors must come from the same clean commit as the running code.
+    for git in ({**_CLEAN, "dirty": True}, {**_CLEAN, "commit": "beef" * 10}):
+        monkeypatch.setattr(sweep, "_git_commit", lambda git=git: dict(git))
+        fake_engine.clear()
+        code, err = _cli(
+            [*base, "--experiment", "early_stopping", "--out", str(out), "--overwrite"],
+            capsys,
+        )
+        assert code == 0, err
+        assert len(fake_engine) == es["chunks_total"]
+        assert _read_all(out) == ref
+
+
+def test_reuse_needs_the_same_problem_file_and_configuration(
+    tmp_path, fake_engine, capsys, monkeypatch
+):
+    monkeypatch.setattr(sweep, "_git_commit", lambda: dict(_CLEAN))
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    a = _problems(tmp_path / "a", [("alpha", 3, 200)])
+    # Another file under the same name (made from another seed).
+    b = _problems(tmp_path / "b", [("gamma", 3, 200), ("alpha", 4, 200)])[1:]
+
+    def engine_calls(experiment, files, horizon, *extra):
+        fake_engine.clear()
+        args = ["--experiment", experiment, "--problems", *files, "--trials", "1"]
+        args += ["--rollouts", "2", "--methods", "legs", "--horizon", str(horizon)]
+        code, err = _cli([*args, "--out", str(tmp_path / "out"), *extra], capsys)
+        assert code == 0, err
+        return len(fake_engine)
+
+    assert engine_calls("main", a, 200) == 1
+    assert engine_calls("early_stopping", b, 200) == 1  # another file
+    assert engine_calls("early_stopping", a, 100, "--overwrite") == 1  # another H
+    assert engine_calls("early_stopping", a, 200, "--overwrite") == 0  # copied
