@@ -87,7 +87,7 @@ NUM_DIRICHLET_SAMPLES = 3000  # M
 
 legs_prune = prune_mask  # the LEGS removal set as a pure, batched function
 
-# Methods whose per-step cost is O(K) (dense state); they prefer small batches.
+# Methods whose per-step cost is O(K) (dense state): smaller batches than the rest.
 _DENSE = ("borges_2000", "legs_no_as", "tql")
 
 _TRACES: Counter = Counter()
@@ -583,8 +583,13 @@ def _hparam_grid(
 
 
 def _default_batch_size(method: str, platform: str, cfg: Config) -> int:
+    # On CPU a step pays a fixed cost per operation (a few microseconds each,
+    # whatever the batch) besides its O(B K) work: at K = 2000, 50 rollouts a
+    # device ran 15-25 % faster than 13 (measured on real chunks of 100 rollouts
+    # on two devices, BENCHMARKS.md), though a rollout's state then no longer
+    # fits in cache for the objects with many poses.
     if platform == "cpu":
-        return 16 if method in _DENSE else 512
+        return 64 if method in _DENSE else 512
     return 2048 if method in _DENSE else 16384
 
 
