@@ -170,10 +170,11 @@ def dirichlet_quantiles(
     for V value vectors scored on the same M samples (SPEC §5).
 
     The Dirichlet draws are exact (normalised Gamma draws from
-    :func:`legs_jax.sampling.gamma_rows`); unobserved poses get no bin, the one
+    :func:`legs_jax.sampling.gamma_bins`, keyed by pose, so that padding a batch
+    with more poses changes no bound); unobserved poses get no bin, the one
     "unseen" bin has value 0. The quantile interpolates linearly between order
     statistics, as ``np.quantile`` does; only the two order statistics needed are
-    selected (``lax.top_k``), not a full sort.
+    selected (:func:`legs_jax.sampling.order_statistics`), not a full sort.
 
     Args:
       keys: [B] keys (consumed).
@@ -185,15 +186,20 @@ def dirichlet_quantiles(
     """
     B, P = counts.shape
     M = num_samples
+    if P >= sampling.MAX_BIN_ID:
+        raise ConfigError(f"at most {sampling.MAX_BIN_ID - 1} poses, got {P}")
     shape = jnp.concatenate(
         [jnp.where(observed, counts + 1.0, 1.0), jnp.ones((B, 1))], axis=1
     )  # [B, P + 1]
-    g = sampling.gamma_rows(
-        keys, jnp.broadcast_to(shape[:, None, :], (B, M, P + 1)).reshape(B, -1)
-    ).reshape(B, M, P + 1)
+    # Pose s is bin s, the unseen bin has an id of its own: a pose's draws do not
+    # depend on how many poses the batch is padded to.
+    ids = list(range(P)) + [sampling.MAX_BIN_ID]
+    g = sampling.gamma_bins(keys, shape, ids, M)  # [B, M, P + 1]
     keep = jnp.concatenate([observed, jnp.ones((B, 1), bool)], axis=1)
     g = jnp.where(keep[:, None, :], g, 0.0)
-    total = jnp.sum(g, axis=2)  # [B, M]
+    # Sums in a fixed order, written out, so that padded poses (g = 0) leave every
+    # bit unchanged.
+    total = sum(g[:, :, s] for s in range(P + 1))  # [B, M]
     v = jnp.where(observed[:, None, :], values, 0.0)  # [B, V, P]
     # Σ_s v_s g_s in a fixed order, written out: XLA fuses it into one pass
     # (a dot or a reduction over a broadcast was 4x slower on CPU here).
@@ -208,8 +214,9 @@ def dirichlet_quantiles(
     lo = int(math.floor(pos))
     hi = min(lo + 1, M - 1)
     frac = jnp.float32(pos - lo)
-    smallest = -jax.lax.top_k(-p, hi + 1)[0]  # [B, V, hi + 1] ascending
-    v_lo, v_hi = smallest[..., lo], smallest[..., hi]
+    v_lo, v_hi = sampling.order_statistics(p, lo)  # [B, V] each
+    if hi == lo:
+        v_hi = v_lo
     return v_lo + frac * (v_hi - v_lo)
 
 

@@ -46,8 +46,10 @@ __all__ = [
     "beta_rows",
     "betainc",
     "dirichlet_lower_bound",
+    "gamma_bins",
     "gamma_rows",
     "key_words",
+    "order_statistics",
     "threefry2x32",
     "uniform_bits",
     "uniform_rows",
@@ -61,6 +63,7 @@ _STREAM_BOOST = 2
 _STREAM_UNIFORM = 3
 _STREAM_PAIR = 4  # Box-Muller words of try 0 of a Beta draw's two gammas
 _STREAM_ACCEPT = 5  # acceptance words of that try 0
+_STREAM_BINS = 7  # gammas of Dirichlet bins (see gamma_bins)
 _STREAM_SHIFT = 24
 
 # Shapes below this are treated as this (Beta(a, b) with a -> 0 tends to a point
@@ -345,6 +348,57 @@ def gamma_rows(keys: jax.Array, a: jax.Array) -> jax.Array:
         return jnp.where(small, jnp.exp(_boosted_log(g, a, bits)), g)
 
     return jax.lax.cond(jnp.any(small), boost, lambda g: g, g)
+
+
+# gamma_bins: the second counter word is stream << 24 | bin id << 12 | try.
+_BIN_SHIFT = 12
+MAX_BIN_ID = (1 << (_STREAM_SHIFT - _BIN_SHIFT)) - 1  # 4095
+
+
+def gamma_bins(keys: jax.Array, a: jax.Array, bin_ids, num_samples: int) -> jax.Array:
+    """``num_samples`` exact Gamma(a_v) draws for each bin v of each row.
+
+    Sample m of bin v draws from the counters (m, stream | id_v << 12 | try) under
+    the row's key, so a bin's draws depend only on the key, m, the bin's id and
+    its shape: not on which other bins the row holds, nor on how many (a
+    Dirichlet over an object's poses gives the same draws whatever padding its
+    batch adds). Marsaglia-Tsang, one try in bulk, the rejected ones retried in a
+    packed buffer (as :func:`gamma_rows`); an element keeps its first accepted try
+    (fewer than 4096 tries: a rejection rate below 5 % makes more impossible in
+    practice).
+
+    Args:
+      keys: [B] keys (consumed).
+      a: [B, V] shapes, >= 1.
+      bin_ids: V distinct integers in [0, :data:`MAX_BIN_ID`] (static).
+      num_samples: M.
+    Returns:
+      [B, M, V] float32 draws.
+    """
+    ids = [int(i) for i in bin_ids]
+    rows, v = a.shape
+    if (
+        len(ids) != v
+        or len(set(ids)) != v
+        or not all(0 <= i <= MAX_BIN_ID for i in ids)
+    ):
+        raise ValueError(
+            f"bin_ids must be {v} distinct integers in [0, {MAX_BIN_ID}], got {ids}"
+        )
+    k0, k1 = key_words(keys)
+    shapes = jnp.broadcast_to(
+        jnp.asarray(a, jnp.float32)[:, None, :], (rows, num_samples, v)
+    ).reshape(rows, num_samples * v)
+    id_words = jnp.asarray(
+        [(_STREAM_BINS << _STREAM_SHIFT) | (i << _BIN_SHIFT) for i in ids], jnp.uint32
+    )
+
+    def counters(j):
+        m = j // v
+        return m.astype(jnp.uint32), id_words[j - m * v]
+
+    g = _gamma_ge1(k0, k1, shapes, counters)
+    return g.reshape(rows, num_samples, v)
 
 
 def _sincos_2pi(t: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -971,3 +1025,52 @@ def argmax_first(x: jax.Array, axis: int = -1) -> jax.Array:
     shape[axis] = n
     index = jnp.arange(n, dtype=jnp.int32).reshape(shape)
     return jnp.min(jnp.where(x == top, index, n), axis=axis)
+
+
+def _ordered_key(x: jax.Array) -> jax.Array:
+    """float32 -> int32 whose order is the floats' order (-0 just below +0)."""
+    bits = jax.lax.bitcast_convert_type(x, jnp.int32)
+    return bits ^ ((bits >> 31) & jnp.int32(0x7FFFFFFF))
+
+
+def _key_value(key: jax.Array) -> jax.Array:
+    """The inverse of :func:`_ordered_key`."""
+    return jax.lax.bitcast_convert_type(
+        key ^ ((key >> 31) & jnp.int32(0x7FFFFFFF)), jnp.float32
+    )
+
+
+def order_statistics(x: jax.Array, k: int) -> tuple[jax.Array, jax.Array]:
+    """The k-th and (k+1)-th smallest values along the last axis (0-based k).
+
+    Exactly ``np.sort(x, -1)[..., k]`` and ``[..., k + 1]`` (the last entry when
+    k + 1 is past the end), found without sorting: a bisection over the floats'
+    32-bit patterns (32 counting passes), then one pass for the next value. On
+    CPU about twice as fast as ``lax.top_k`` for k ~ 150 of 3000. ``x`` must
+    hold no NaN.
+    """
+    x = jnp.asarray(x, jnp.float32)
+    n = x.shape[-1]
+    if not 0 <= k < n:
+        raise ValueError(f"k = {k} out of range for {n} values")
+    key = _ordered_key(x)
+    lo = jnp.min(key, axis=-1)
+    hi = jnp.max(key, axis=-1)
+
+    # Invariant: the k-th smallest key lies in [lo, hi].
+    def halve(_, bounds):
+        lo, hi = bounds
+        mid = (lo & hi) + ((lo ^ hi) >> 1)  # floor((lo + hi) / 2) without overflow
+        count = jnp.sum((key <= mid[..., None]).astype(jnp.int32), axis=-1)
+        left = count >= k + 1
+        return jnp.where(left, lo, mid + 1), jnp.where(left, mid, hi)
+
+    kth, _ = jax.lax.fori_loop(0, 32, halve, (lo, hi))
+    if k + 1 >= n:
+        return _key_value(kth), _key_value(kth)
+    at_most = jnp.sum((key <= kth[..., None]).astype(jnp.int32), axis=-1)
+    above = jnp.min(
+        jnp.where(key > kth[..., None], key, jnp.iinfo(jnp.int32).max), axis=-1
+    )
+    nxt = jnp.where(at_most >= k + 2, kth, above)
+    return _key_value(kth), _key_value(nxt)

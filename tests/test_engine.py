@@ -327,3 +327,29 @@ def test_batch_rows_split_work_evenly(rows, largest, quantum, want):
     assert per == want
     n_batches = -(-rows // per)
     assert per <= max(largest, quantum) and n_batches == -(-rows // largest)
+
+
+def test_dirichlet_bounds_do_not_depend_on_pose_padding():
+    """A batch padded with more poses (never observed, as in a chunk with a larger
+    object) gives every rollout bit-identical stopping bounds."""
+    import jax
+
+    rng = np.random.default_rng(5)
+    B, P, pad = 6, 5, 4
+    counts = rng.integers(0, 300, (B, P)).astype(np.float32)
+    observed = rng.uniform(size=(B, P)) < 0.8
+    counts = np.where(observed, counts, 0.0).astype(np.float32)
+    values = rng.uniform(size=(B, 2, P)).astype(np.float32)
+    k = jax.random.split(jax.random.key(3), B)
+    f = jax.jit(engine.dirichlet_quantiles)
+    plain = np.asarray(f(k, counts, observed, values))
+    wide = np.asarray(
+        f(
+            k,
+            np.pad(counts, ((0, 0), (0, pad))),
+            np.pad(observed, ((0, 0), (0, pad))),
+            np.pad(values, ((0, 0), (0, 0), (0, pad))),
+        )
+    )
+    np.testing.assert_array_equal(plain, wide)
+    assert np.all((plain > 0.0) & (plain < 1.0))

@@ -393,3 +393,59 @@ def test_argmax_first():
     y = np.full((2, 5), -np.inf, np.float32)
     y[1, 3] = 0.0
     np.testing.assert_array_equal(np.asarray(sampling.argmax_first(y)), [0, 3])
+
+
+@pytest.mark.parametrize("k", [0, 1, 149, 2998, 2999])
+def test_order_statistics_equal_a_sort(k):
+    """The k-th and (k+1)-th smallest, bit for bit as a sort gives them, also with
+    ties, zeros, negative values and one distinct value per row."""
+    rng = np.random.default_rng(17 + k)
+    x = rng.uniform(size=(6, 3000)).astype(np.float32)
+    x[1, :400] = 0.25  # ties across the order statistics
+    x[2] = np.round(x[2] * 8) / 8  # few distinct values
+    x[3, :200] = 0.0
+    x[4] -= 0.5  # negative values
+    x[5] = 0.5  # one value
+    lo, hi = jax.jit(sampling.order_statistics, static_argnums=1)(x, k)
+    s = np.sort(x, axis=-1)
+    np.testing.assert_array_equal(np.asarray(lo), s[:, k])
+    np.testing.assert_array_equal(np.asarray(hi), s[:, min(k + 1, 2999)])
+
+
+def test_order_statistics_refuses_out_of_range():
+    with pytest.raises(ValueError, match="out of range"):
+        sampling.order_statistics(jnp.zeros((2, 5)), 5)
+
+
+def test_gamma_bins_ks_and_independent_of_other_bins():
+    """Each bin's draws are exact Gamma draws, and a bin's draws do not change when
+    the row holds other bins (more, fewer, in another order)."""
+    shapes = np.array([[1.0, 3.0, 151.0, 1.0]], np.float32)
+    g = np.asarray(
+        jax.jit(sampling.gamma_bins, static_argnums=(2, 3))(
+            _keys(21, 1), shapes, (0, 1, 2, sampling.MAX_BIN_ID), 20000
+        )
+    )[0]
+    for v, a in enumerate(shapes[0]):
+        assert scipy.stats.kstest(g[:, v], scipy.stats.gamma(a).cdf).pvalue > KS_LEVEL
+    # bins 0 and 3 again, alone and in another order, beside a new bin 7
+    other = np.asarray(
+        sampling.gamma_bins(
+            _keys(21, 1),
+            np.array([[1.0, 5.0, 1.0]], np.float32),
+            (sampling.MAX_BIN_ID, 7, 0),
+            20000,
+        )
+    )[0]
+    np.testing.assert_array_equal(other[:, 0], g[:, 3])
+    np.testing.assert_array_equal(other[:, 2], g[:, 0])
+    # distinct bins of equal shape are not the same draws
+    assert not np.array_equal(g[:, 0], g[:, 3])
+
+
+def test_gamma_bins_refuses_bad_ids():
+    a = np.ones((1, 2), np.float32)
+    with pytest.raises(ValueError, match="distinct"):
+        sampling.gamma_bins(_keys(0, 1), a, (3, 3), 10)
+    with pytest.raises(ValueError, match="distinct"):
+        sampling.gamma_bins(_keys(0, 1), a, (0, sampling.MAX_BIN_ID + 1), 10)
