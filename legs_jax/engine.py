@@ -220,6 +220,30 @@ def dirichlet_quantiles(
     return v_lo + frac * (v_hi - v_lo)
 
 
+# Rows of one pass of the Dirichlet bounds: M (P + 1) draws a row, so that a
+# block's draws stay in cache (on CPU 64 rows ran about 1.3x faster a row than
+# 512). A row's bounds do not depend on the rows beside it.
+_CHECK_ROWS = 64
+
+
+def _in_row_blocks(fn: Callable, *arrays):
+    """``fn(*arrays)`` computed over blocks of at most ``_CHECK_ROWS`` rows (the
+    leading axis), one block after another; the result is the same."""
+    rows = arrays[0].shape[0]
+    if rows <= _CHECK_ROWS:
+        return fn(*arrays)
+    n = -(-rows // _CHECK_ROWS)
+    pad = n * _CHECK_ROWS - rows
+
+    def blocks(x):
+        if pad:
+            x = jnp.concatenate([x, jnp.repeat(x[:1], pad, axis=0)], axis=0)
+        return x.reshape((n, _CHECK_ROWS) + x.shape[1:])
+
+    out = jax.lax.map(lambda xs: fn(*xs), tuple(blocks(x) for x in arrays))
+    return out.reshape((n * _CHECK_ROWS,) + out.shape[2:])[:rows]
+
+
 def dirichlet_checks(
     rollout_keys: jax.Array, out: dict[str, jax.Array]
 ) -> dict[str, jax.Array]:
@@ -238,11 +262,14 @@ def dirichlet_checks(
     B, C2, _ = counts.shape
     ck = keys_mod.check_key(rollout_keys)
 
+    def bounds(ck, idx, c, o, v):
+        k = keys_mod.step_keys(ck, idx)
+        return dirichlet_quantiles(k, c, o, v, DELTA_STOP, NUM_DIRICHLET_SAMPLES)
+
     def one(args):
         idx, c, o, va, vt = args
-        k = keys_mod.step_keys(ck, idx)
         v = va[:, None] if vt is None else jnp.stack([va, vt], axis=1)
-        lo = dirichlet_quantiles(k, c, o, v, DELTA_STOP, NUM_DIRICHLET_SAMPLES)
+        lo = _in_row_blocks(lambda ck, c, o, v: bounds(ck, idx, c, o, v), ck, c, o, v)
         if vt is None:
             return lo[:, 0], jnp.full(B, jnp.nan, jnp.float32)
         return lo[:, 0], lo[:, 1]

@@ -252,7 +252,7 @@ def _plain_counters(stream: int):
     return counters
 
 
-def _gamma_ge1(k0, k1, a, counters, tries_per_round=4, capacity=None):
+def _gamma_ge1(k0, k1, a, counters, capacity=None):
     """Gamma(a') draws ([B, M] float32) for a' = a + 1 where a < 1, else a.
 
     (Callers boost the draws of shapes below 1 afterwards.)
@@ -261,12 +261,10 @@ def _gamma_ge1(k0, k1, a, counters, tries_per_round=4, capacity=None):
     words of their first try; try t adds t to the second word. Every element takes
     the first accepted try of its own sequence 0, 1, 2, ..., whatever the batch
     holds, so the values do not depend on which rejected elements share a retry
-    round. The first try of every element runs in bulk; the rejected ones (0.3-3 %)
-    are packed into a buffer of ``capacity`` slots and retried there,
-    ``tries_per_round`` tries at a time, until none is left.
-
-    A pending element holds minus the number of tries it has used, so the state of
-    the retry loop is the one output array.
+    pass. The first try of every element runs in bulk; the rejected ones
+    (0.3-5 %) are packed into a buffer of ``capacity`` slots and finished there,
+    one try per loop iteration until every element of the buffer is accepted;
+    passes repeat until none is left.
     """
     rows, m = a.shape
 
@@ -281,41 +279,43 @@ def _gamma_ge1(k0, k1, a, counters, tries_per_round=4, capacity=None):
     total = rows * m
     if capacity is None:
         # A multiple of 64: XLA's CPU loops run scalar over odd lengths.
-        capacity = -(-(total // 32 + 32) // 64) * 64
+        capacity = -(-(total // 64 + 64) // 64) * 64
     # At least 2 slots: XLA compiles one-element arrays differently, and the last
     # bit of a value must not depend on the buffer it went through.
     capacity = max(2, capacity)
     a_flat = a.reshape(-1)
     key_pairs = jnp.concatenate([k0, k1], axis=1)  # [B, 2]
 
-    def cond(g):
-        return jnp.any(g < 0.0)
-
-    def body(g):
-        idx = _pending_slots(g < 0.0, capacity)  # [C], total where unused
+    def finish(g, idx):
+        """Finish the elements ``idx`` (``total`` where unused), tries t >= 1."""
         idx_c = jnp.minimum(idx, total - 1)
         row = idx_c // m
         ds = shape_d(a_flat[idx_c])
         cs = jax.lax.rsqrt(9.0 * ds)
         kp = key_pairs[row]  # one gather for both words
         r0, r1 = kp[:, 0], kp[:, 1]
-        tried = -g[idx_c]
-        c0, c1 = counters(idx_c - row * m)
-        c1 = c1 + tried.astype(jnp.uint32)
-        # The tries run inside a loop of their own: fused into the scatter below,
-        # they would be emitted over its [C, 1] updates, a scalar loop.
+        b0, b1 = counters(idx_c - row * m)
 
-        def one_try(t, gs):
-            v0, v1 = threefry2x32(r0, r1, c0, c1 + t.astype(jnp.uint32))
+        # (A loop, not unrolled: its state is a plain [C] array, so that XLA
+        # emits vector code for the tries.)
+        def one_try(state):
+            t, gs = state
+            v0, v1 = threefry2x32(r0, r1, b0, b1 + t.astype(jnp.uint32))
             gt = _mt_try(ds, cs, v0, v1, jnp.float32(-1.0))
-            return jnp.where(gs < 0.0, gt, gs)
+            return t + 1, jnp.where(gs < 0.0, gt, gs)
 
-        init = jnp.full(idx.shape, -1.0, jnp.float32)
-        gs = jax.lax.fori_loop(0, tries_per_round, one_try, init)
-        gs = jnp.where(gs < 0.0, -(tried + tries_per_round), gs)
+        init = (jnp.int32(1), jnp.full(idx.shape, -1.0, jnp.float32))
+        _, gs = jax.lax.while_loop(lambda s: jnp.any(s[1] < 0.0), one_try, init)
         return g.at[idx].set(gs, mode="drop")
 
-    g = jax.lax.while_loop(cond, body, g)
+    # Passes over the buffer until every element is done; the first always runs
+    # (its loop state keeps the bulk pass a single fusion).
+    def one_pass(state):
+        g, _ = state
+        idx, count = _pending_slots(g < 0.0, capacity, with_count=True)
+        return finish(g, idx), count - capacity
+
+    g, _ = jax.lax.while_loop(lambda s: s[1] > 0, one_pass, (g, jnp.int32(1)))
     return g.reshape(rows, m)
 
 

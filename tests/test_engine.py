@@ -353,3 +353,30 @@ def test_dirichlet_bounds_do_not_depend_on_pose_padding():
     )
     np.testing.assert_array_equal(plain, wide)
     assert np.all((plain > 0.0) & (plain < 1.0))
+
+
+def test_dirichlet_checks_in_row_blocks_equal_small_batches():
+    """More rows than one block of the Dirichlet pass (computed block by block)
+    give each row the bounds it gets in a batch of its own kind."""
+    import jax
+
+    rng = np.random.default_rng(8)
+    B, C2, P = engine._CHECK_ROWS + 37, 2, 4
+    keys_ = keys.rollout_keys(
+        0, np.zeros(B, np.int64), np.zeros(B, np.int64), np.arange(B)
+    )
+    counts = rng.integers(0, 50, (B, C2, P)).astype(np.float32)
+    out = dict(
+        check_counts=counts,
+        check_observed=rng.uniform(size=(B, C2, P)) < 0.9,
+        check_values=rng.uniform(size=(B, C2, P)).astype(np.float32),
+        check_values_attempted=rng.uniform(size=(B, C2, P)).astype(np.float32),
+    )
+    f = jax.jit(engine.dirichlet_checks)
+    whole = f(keys_, out)
+    for part in (slice(0, 20), slice(20, B)):
+        piece = f(keys_[part], {k: v[part] for k, v in out.items()})
+        for name in ("check_p_lower", "check_p_lower_attempted"):
+            np.testing.assert_array_equal(
+                np.asarray(whole[name])[part], np.asarray(piece[name])
+            )
