@@ -262,14 +262,15 @@ def dirichlet_checks(
     B, C2, _ = counts.shape
     ck = keys_mod.check_key(rollout_keys)
 
-    def bounds(ck, idx, c, o, v):
-        k = keys_mod.step_keys(ck, idx)
-        return dirichlet_quantiles(k, c, o, v, DELTA_STOP, NUM_DIRICHLET_SAMPLES)
-
     def one(args):
         idx, c, o, va, vt = args
         v = va[:, None] if vt is None else jnp.stack([va, vt], axis=1)
-        lo = _in_row_blocks(lambda ck, c, o, v: bounds(ck, idx, c, o, v), ck, c, o, v)
+
+        def bounds(ck, c, o, v):
+            k = keys_mod.step_keys(ck, idx)
+            return dirichlet_quantiles(k, c, o, v, DELTA_STOP, NUM_DIRICHLET_SAMPLES)
+
+        lo = _in_row_blocks(bounds, ck, c, o, v)
         if vt is None:
             return lo[:, 0], jnp.full(B, jnp.nan, jnp.float32)
         return lo[:, 0], lo[:, 1]
@@ -619,9 +620,9 @@ def _hparam_grid(
 def _default_batch_size(method: str, platform: str, cfg: Config) -> int:
     # On CPU a step pays a fixed cost per operation (a few microseconds each,
     # whatever the batch) besides its O(B K) work: at K = 2000, 50 rollouts a
-    # device ran 15-25 % faster than 13 (measured on real chunks of 100 rollouts
-    # on two devices, BENCHMARKS.md), though a rollout's state then no longer
-    # fits in cache for the objects with many poses.
+    # device ran 1.07-1.42x faster than 13 (real chunks of 100 rollouts on two
+    # devices, BENCHMARKS.md; least for the objects with the most poses, whose
+    # rollout state then no longer fits in cache).
     if platform == "cpu":
         return 64 if method in _DENSE else 512
     return 2048 if method in _DENSE else 16384
