@@ -292,7 +292,7 @@ def _draw_object(
         info["pose"] = pose
         transform = pb.pose_transform[pose]
         centers = pb.grasp_center[0, pose][pb.valid[0, pose]]
-        scale = render.choose_scale(mesh.vertices, transform, centers)
+        scale = render.problem_scale(pb, mesh.vertices, transform, centers)
     else:
         info["notes"].append(why_pb)
     verts = render.pose_vertices(mesh.vertices, transform, scale)

@@ -21,6 +21,7 @@ __all__ = [
     "grasp_segments",
     "load_mesh",
     "pose_vertices",
+    "problem_scale",
     "render",
 ]
 
@@ -191,6 +192,16 @@ def grasp_segments(
     axis = np.asarray(axis, np.float64).reshape(-1, 3)
     half = 0.5 * opening * np.asarray(width, np.float64).reshape(-1, 1)
     return np.stack([center - half * axis, center + half * axis], axis=1)
+
+
+def problem_scale(pb, vertices, transform, centers) -> float:
+    """The factor from the mesh file's units to the problem's metres: the one its
+    build recorded (``meta["mesh_scale"]``, the size rule included), else a guess
+    from the grasp centres (:func:`choose_scale`)."""
+    recorded = (pb.meta or {}).get("mesh_scale") if pb is not None else None
+    if isinstance(recorded, int | float) and recorded > 0:
+        return float(recorded)
+    return choose_scale(vertices, transform, centers)
 
 
 def choose_scale(

@@ -37,7 +37,7 @@ from . import poses as _poses
 from . import prior as _prior
 from .errors import PrecomputeError
 from .mesh import load_mesh
-from .raycast import RayCaster
+from .raycast import RayCaster, face_pad_normals
 
 __all__ = [
     "CODE_VERSION",
@@ -51,7 +51,7 @@ __all__ = [
     "ensure",
 ]
 
-CODE_VERSION = "1"
+CODE_VERSION = "2"
 
 STREAM_GRASPS = 1
 STREAM_PERTURB = 2
@@ -91,11 +91,14 @@ def object_key(name: str) -> int:
     )
 
 
-def build_hash(mesh_sha256: str, units: str, name: str, params: BuildParams) -> str:
+def build_hash(
+    mesh_sha256: str, units: str, name: str, params: BuildParams, fit: str = "none"
+) -> str:
     blob = json.dumps(
         {
             "mesh_sha256": mesh_sha256,
             "units": units,
+            "fit": fit,
             "name": name,
             "params": dataclasses.asdict(params),
             "gripper": G.gripper_params(),
@@ -118,6 +121,7 @@ def build_problem(
     *,
     units: str,
     name: str,
+    fit: str = "none",
     set_name: str = "custom",
     params: BuildParams | None = None,
     on_poses: Callable[[int], None] | None = None,
@@ -131,7 +135,7 @@ def build_problem(
     from legs_jax.problem import Problem
 
     params = (params or BuildParams()).check()
-    mesh = load_mesh(mesh_path, units)
+    mesh = load_mesh(mesh_path, units, fit)
     com = mesh.center_mass
     try:
         hull = _poses.hull_model(mesh.vertices, mesh.faces, com)
@@ -153,10 +157,14 @@ def build_problem(
     width = np.zeros((T, P, K), np.float32)
     height = np.zeros((T, P, K), np.float32)
     pose_info = []
+    # pad normals of the unposed mesh, turned with each pose (one KD-tree per mesh)
+    pad = face_pad_normals(mesh.vertices, mesh.faces, G.PAD_RADIUS)
     for s in range(P):
         tf = sp.transforms[s]
-        posed = mesh.vertices @ tf[:3, :3].T + tf[:3, 3]
-        caster = RayCaster(posed, mesh.faces)
+        posed = _rotate(mesh.vertices, tf[:3, :3]) + tf[:3, 3]
+        caster = RayCaster(
+            posed, mesh.faces, pad_normals={G.PAD_RADIUS: _rotate(pad, tf[:3, :3])}
+        )
         hmap = G.height_map(caster)
         res = [
             G.sample_reservoir(caster, hmap, K, _rng(params, name, s, t, STREAM_GRASPS))
@@ -217,8 +225,10 @@ def build_problem(
         "mesh_sha256": mesh.sha256,
         "units": units,
         "mesh_scale": mesh.scale,
+        "fit": fit,
         "pose_transform_note": (
-            "rigid transforms of the mesh after scaling by mesh_scale (metres); "
+            "rigid transforms of the mesh after scaling by mesh_scale (file units "
+            "to metres, the size rule `fit` included); "
             "pose frame: table z=0, z up, centre of mass above the origin"
         ),
         "repairs": list(mesh.repairs),
@@ -235,7 +245,7 @@ def build_problem(
         "dropped_landing_mass": round(sp.dropped_mass, 6),
         "poses": pose_info,
         "code_version": CODE_VERSION,
-        "build_hash": build_hash(mesh.sha256, units, name, params),
+        "build_hash": build_hash(mesh.sha256, units, name, params, fit),
     }
     problem = Problem(
         name=name,
@@ -253,6 +263,13 @@ def build_problem(
         meta=meta,
     )
     return problem.validate()
+
+
+def _rotate(points: np.ndarray, rot: np.ndarray) -> np.ndarray:
+    """points [N, 3] @ rot.T, written out so that it rounds the same on every
+    processor (a BLAS product picks its kernel, and its rounding, by CPU)."""
+    x, y, z = points[:, 0:1], points[:, 1:2], points[:, 2:3]
+    return x * rot[:, 0] + y * rot[:, 1] + z * rot[:, 2]
 
 
 def _display_path(path: Path) -> str:
@@ -313,7 +330,9 @@ def is_up_to_date(path: Path, expected_hash: str) -> bool:
 def expected_hash(info, params: BuildParams) -> str:
     from .mesh import file_sha256
 
-    return build_hash(file_sha256(info.mesh_path), info.units, info.name, params)
+    return build_hash(
+        file_sha256(info.mesh_path), info.units, info.name, params, info.fit
+    )
 
 
 def out_of_date(

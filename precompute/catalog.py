@@ -1,7 +1,8 @@
 """The 62 shipped objects: ``data/meshes/<set>/<name>.obj``.
 
-Sets: ``dexnet_adv`` (13 Dex-Net 2.0 adversarial meshes, in metres) and
-``egad_eval`` (the 49 EGAD! evaluation objects A0-G6, in millimetres).
+Sets: ``dexnet_adv`` (13 Dex-Net 2.0 adversarial meshes, in metres, kept at their
+physical size) and ``egad_eval`` (the 49 EGAD! evaluation objects A0-G6, in
+millimetres, sized by EGAD!'s rule for the gripper: see :mod:`precompute.mesh`).
 
 ``object_id`` is the index of the object in the sorted catalogue (sorted by set,
 then name), so it is stable as long as the shipped meshes do not change.
@@ -20,6 +21,7 @@ from .errors import PrecomputeError
 __all__ = [
     "SETS",
     "SET_UNITS",
+    "SET_FIT",
     "ObjectInfo",
     "data_dir",
     "objects",
@@ -31,6 +33,8 @@ __all__ = [
 SETS = ("dexnet_adv", "egad_eval")
 #: Length unit of the mesh files of each set.
 SET_UNITS = {"dexnet_adv": "m", "egad_eval": "mm"}
+#: Size rule of each set (``precompute.mesh.FITS``).
+SET_FIT = {"dexnet_adv": "none", "egad_eval": "egad"}
 
 _REPO_DATA = Path(__file__).resolve().parent.parent / "data"
 
@@ -50,6 +54,7 @@ class ObjectInfo:
     mesh_path: Path  # data/meshes/<set>/<name>.obj
     object_id: int  # index in the sorted catalogue (seeding, SPEC §2)
     units: str  # "m" or "mm", the length unit of the mesh file
+    fit: str = "none"  # size rule: "none" (file size) or "egad" (EGAD!'s rule)
 
 
 @lru_cache(maxsize=8)
@@ -64,7 +69,8 @@ def _scan(root: str) -> tuple[ObjectInfo, ...]:
             found.append((set_name, path.stem, path))
     found.sort(key=lambda x: (SETS.index(x[0]), x[1]))
     return tuple(
-        ObjectInfo(s, n, p, i, SET_UNITS[s]) for i, (s, n, p) in enumerate(found)
+        ObjectInfo(s, n, p, i, SET_UNITS[s], SET_FIT[s])
+        for i, (s, n, p) in enumerate(found)
     )
 
 

@@ -15,8 +15,10 @@ topple matrix, T reservoirs of K top-down parallel-jaw grasps per pose, the
 ground-truth success probability of every grasp (Embree ray casting under
 perturbation) and the synthetic GQ-CNN stand-in prior.
 
-Files go to <out>/<set>/<name>.npz (default out: data/problems). Up-to-date files
-(same mesh, parameters and code version) are skipped; --force rebuilds them.
+Catalogue objects go to <out>/<set>/<name>.npz (default out: the repository's
+data/problems). A mesh of your own (--mesh) goes to <out>/custom/<name>.npz with
+out defaulting to ./problems under the current folder. Up-to-date files (same
+mesh, parameters and code version) are skipped; --force rebuilds them.
 
 Other commands:
   python -m precompute report      summary.csv and figures of built problems
@@ -56,10 +58,19 @@ def _build_parser() -> argparse.ArgumentParser:
         help="length unit of --mesh (catalogue meshes know theirs)",
     )
     p.add_argument(
+        "--fit",
+        choices=["none", "egad"],
+        default="none",
+        help="size rule for --mesh: none keeps the file's size (default); egad "
+        "scales as EGAD! does for the gripper (largest side = the 80 mm opening, "
+        "smallest side at most 64 mm)",
+    )
+    p.add_argument(
         "--out",
         type=Path,
-        help="folder for problem files (default: data/problems, or the user cache "
-        "when data/ is read-only)",
+        help="folder for problem files (default: data/problems for catalogue "
+        "objects, or the user cache when data/ is read-only; ./problems under the "
+        "current folder for --mesh)",
     )
     p.add_argument("--trials", type=int, default=d.trials, help="reservoirs T (10)")
     p.add_argument(
@@ -100,20 +111,24 @@ def _build(argv) -> int:
     ).check()
     if a.jobs is not None and a.jobs < 1:
         raise PrecomputeError(f"--jobs must be at least 1, got {a.jobs}")
-    out = a.out if a.out is not None else problems_dir()
     if a.mesh is not None:
         if a.units is None:
             raise PrecomputeError(
                 f"--mesh {a.mesh} needs --units (one of {', '.join(UNITS)})"
             )
+        out = a.out if a.out is not None else Path.cwd() / "problems"
         name = a.mesh.stem
-        tasks = [
-            Task(a.mesh, a.units, name, "custom", Path(out) / "custom" / f"{name}.npz")
-        ]
+        dest = Path(out) / "custom" / f"{name}.npz"
+        tasks = [Task(a.mesh, a.units, name, "custom", dest, a.fit)]
         skipped = []
     else:
+        out = a.out if a.out is not None else problems_dir()
         if a.units is not None:
             raise PrecomputeError("--units applies to --mesh only")
+        if a.fit != "none":
+            raise PrecomputeError(
+                "--fit applies to --mesh only (catalogue sets carry their own rule)"
+            )
         if a.all:
             infos = catalog.objects()
         elif a.set_name:
@@ -126,7 +141,7 @@ def _build(argv) -> int:
             if not a.force and is_up_to_date(dest, expected_hash(i, params)):
                 skipped.append(dest)
             else:
-                tasks.append(Task(i.mesh_path, i.units, i.name, i.set, dest))
+                tasks.append(Task(i.mesh_path, i.units, i.name, i.set, dest, i.fit))
     if skipped:
         print(f"{len(skipped)} up-to-date problem file(s) skipped (--force rebuilds)")
     if not tasks:

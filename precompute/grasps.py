@@ -3,13 +3,18 @@
 Gripper (all lengths in metres, in the pose frame: table at z = 0, z up)
 -------------------------------------------------------------------------
 A parallel-jaw gripper approaching vertically from above, jaw axis horizontal
-(a Franka-Panda-like hand):
+(a Franka-Panda-like hand; SPEC §6 leaves the opening to us, "≈ 0.08 m"):
 
-- ``OPENING`` = 0.08: distance between the two finger pads when open.
-- Each finger is a vertical bar whose pad (the face that touches the object) spans
-  ``PAD_HEIGHTS`` = 0, 10 and 20 mm above the grasp height h; its tip is
+- ``OPENING`` = 0.08: distance between the two finger pads when open (the Franka
+  Hand opens 80 mm).
+- Each finger is a vertical bar whose pad (the face that touches the object) is
+  probed at ``PAD_HEIGHTS`` = 0 and 10 mm above the grasp height h; its tip is
   ``TIP_BELOW`` = 2 mm below h. For collisions a finger is a vertical cylinder of
   radius ``FINGER_RADIUS`` = 6 mm just outside its pad.
+- The pad is as wide as the finger: the contact normal it feels is the normal of
+  the surface's plane under a disc of radius ``PAD_RADIUS`` = ``FINGER_RADIUS``
+  around the contact (:func:`precompute.raycast.face_pad_normals`), not the normal
+  of one facet of the mesh.
 - The palm is ``FINGER_LENGTH`` = 50 mm above the finger tips and spans the gap
   between the fingers (width 2 × FINGER_RADIUS).
 
@@ -22,32 +27,44 @@ Executing a grasp (nominal or perturbed)
    the way down: the object's height map (one downward ray per 1 mm cell, dilated by
    the finger radius) must stay below the finger tip under each finger and below the
    palm over the gap. Finger tips below the table fail too.
-2. Closing: each finger's pad sweeps towards the other; three rays per finger (one
-   per pad height) are cast by Embree from the open pad position along ±a; the finger
-   stops at the nearest hit. A finger that meets nothing within the opening, or
-   starts inside the object (first hit on a face turned away), fails.
+2. Closing: each finger's pad sweeps towards the other; one ray per pad height and
+   finger is cast by Embree from the open pad position along ±a; the finger stops at
+   the nearest hit, and of the pad points within ``PAD_COMPLIANCE`` (0.5 mm) of that
+   first touch the one whose pad normal best opposes the squeeze is the contact. A
+   finger that meets nothing within the opening, or starts inside the object (first
+   hit on a face turned away), fails.
 3. Force closure of the two contacts (points with Coulomb friction, Nguyen's
-   two-finger test): the line joining the contacts lies inside both friction cones,
-   -n₁·v ≥ cos(atan μ) and n₂·v ≥ cos(atan μ), with n the outward face normals and
-   v the unit vector from contact 1 to contact 2. Contacts under the table fail.
+   two-finger test, as Dex-Net's ``quality.py``): the line joining the contacts lies
+   inside both friction cones, -n₁·v ≥ cos(atan μ) and n₂·v ≥ cos(atan μ), with n
+   the outward pad normals and v the unit vector from contact 1 to contact 2.
+   Contacts under the table fail.
 
-Ground truth p (SPEC §6): the fraction of ``SAMPLES`` perturbed executions that
+Ground truth p (SPEC §6): the fraction of ``SAMPLES`` = 50 perturbed executions that
 succeed; each sample draws a planar translation of the gripper relative to the
-object (σ = 1 cm per axis), a yaw (σ = 0.05 rad, about the vertical through c) and
-a friction coefficient μ ~ N(0.5, 0.1) clipped to [0, 1]. Contacts are recomputed by
-ray casting for every sample. All rays of a pose go through a few large Embree calls.
+object (σ = ``SIGMA_TRANSLATION`` = 10 mm / √2 ≈ 7.07 mm per horizontal axis, so
+10 mm root-mean-square in the plane; Dex-Net's configurations use 5-10 mm), a yaw
+(σ = ``SIGMA_YAW`` = 0.05 rad, about the vertical through c) and a friction
+coefficient μ ~ N(0.5, 0.1) clipped to [0, 1] (Dex-Net 2.0). Contacts are
+recomputed by ray casting for every sample. All rays of a pose go through a few
+large Embree calls.
 
-Reservoir sampler
------------------
+Reservoir sampler (antipodal, as Dex-Net's and GQ-CNN's)
+--------------------------------------------------------
 Per trial and pose, candidates are drawn from the pose's geometry: a point x on a
-side face (|n_z| < 0.95, area-weighted, x_z ≥ ``MIN_HEIGHT``), an axis pointing into
-the surface (the horizontal part of -n) turned by a yaw uniform in ±``AXIS_SPREAD``,
-and the jaw centre midway across the object's chord through x along the axis. A
-candidate enters the reservoir when its nominal execution reaches two contacts
-without collision (so its width is within the opening); force closure is not
-required, so reservoirs hold good and bad grasps. Candidates are drawn in rounds of
-2K until K are accepted or ``MAX_ROUNDS`` rounds are spent; then the rest of the
-slots are padding (``valid`` False).
+side face (pad normal with |n_z| < ``SIDE_FACE_NZ``, area-weighted, x_z ≥
+``MIN_HEIGHT``), an axis pointing into the surface (the horizontal part of the pad
+normal -n) turned by a yaw uniform in ±``AXIS_SPREAD`` = ±atan(μ_s), the friction
+cone's half-angle (Dex-Net's antipodal sampler draws the axis inside the cone,
+BerkeleyAutomation/dex-net ``src/dexnet/grasping/grasp_sampler.py``), and the jaw
+centre midway across the object's chord through x along the axis. A candidate
+enters the reservoir only when its nominal execution reaches two contacts without
+collision and those two contacts pass the force-closure test at the sampling
+friction μ_s = ``SAMPLING_FRICTION`` = 0.6 (Dex-Net 2.0's antipodal rejection
+sampling, RSS 2017 §IV-A). Nominal force closure is not robustness: under the
+perturbations above many antipodal grasps slip off an edge or a narrow face, so a
+reservoir holds both good and bad grasps. Candidates are drawn in rounds of 2K
+until K are accepted or ``MAX_ROUNDS`` rounds are spent; then the rest of the slots
+are padding (``valid`` False).
 """
 
 from __future__ import annotations
@@ -66,6 +83,8 @@ __all__ = [
     "TIP_BELOW",
     "MIN_HEIGHT",
     "AXIS_SPREAD",
+    "PAD_RADIUS",
+    "SAMPLING_FRICTION",
     "MAX_ROUNDS",
     "SAMPLES",
     "SIGMA_TRANSLATION",
@@ -90,8 +109,10 @@ PAD_LATERAL = (0.0,)
 PAD_COMPLIANCE = 0.0005
 TIP_BELOW = 0.002
 MIN_HEIGHT = 0.005
-AXIS_SPREAD = np.deg2rad(60.0)
-MAX_ROUNDS = 8
+PAD_RADIUS = FINGER_RADIUS
+SAMPLING_FRICTION = 0.6
+AXIS_SPREAD = float(np.arctan(SAMPLING_FRICTION))
+MAX_ROUNDS = 20
 SIDE_FACE_NZ = 0.95
 
 SAMPLES = 50
@@ -115,6 +136,9 @@ def gripper_params() -> dict:
         "tip_below": TIP_BELOW,
         "min_height": MIN_HEIGHT,
         "axis_spread_rad": float(AXIS_SPREAD),
+        "pad_radius": PAD_RADIUS,
+        "sampling_friction": SAMPLING_FRICTION,
+        "antipodal": True,
         "max_rounds": MAX_ROUNDS,
         "side_face_nz": SIDE_FACE_NZ,
         "sigma_translation": SIGMA_TRANSLATION,
@@ -242,12 +266,19 @@ def _close(caster: RayCaster, c: np.ndarray, a: np.ndarray):
     ).reshape(-1, 3)
     t, prim = caster.cast_raw(origins, dirs)
     t = t.reshape(2, nl, m)
-    nrm = caster.normals_of(prim.reshape(2, nl, m), np.float32)  # [2, n, m, 3]
+    prim = prim.reshape(2, nl, m)
+    face = caster.normals_of(prim, np.float32)  # [2, n, m, 3] facet normals
+    nrm = caster.pad_normals_of(prim, PAD_RADIUS)  # what the pad feels
+    face_along = (
+        face[..., 0] * a32[None, :, None, 0]
+        + face[..., 1] * a32[None, :, None, 1]
+        + face[..., 2] * a32[None, :, None, 2]
+    )  # n·a of the facet hit
     along = (
         nrm[..., 0] * a32[None, :, None, 0]
         + nrm[..., 1] * a32[None, :, None, 1]
         + nrm[..., 2] * a32[None, :, None, 2]
-    )  # n·a
+    )  # n·a of the pad normal
     idx = np.arange(nl)
     if m == 1:
         near = np.zeros((2, nl), np.int64)
@@ -257,7 +288,7 @@ def _close(caster: RayCaster, c: np.ndarray, a: np.ndarray):
         tmin = np.take_along_axis(t, near[..., None], axis=2)[..., 0]
     found = (tmin[0] <= OPENING) & (tmin[1] <= OPENING)
     # the pad starts inside the object when its first hit is a face turned away
-    out = (along[0, idx, near[0]] < 0) & (along[1, idx, near[1]] > 0)
+    out = (face_along[0, idx, near[0]] < 0) & (face_along[1, idx, near[1]] > 0)
     if m == 1:
         k = near
     else:
@@ -301,7 +332,9 @@ class Reservoir:
 
 def _side_faces(caster: RayCaster):
     tri = caster.vertices[caster.faces]  # [F, 3, 3]
-    nrm = caster.face_normals
+    nrm = caster.pad_normals_of(np.arange(len(caster.faces)), PAD_RADIUS).astype(
+        np.float64
+    )
     area = 0.5 * np.linalg.norm(
         np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1
     )
@@ -317,8 +350,8 @@ def sample_reservoir(
     num_grasps: int,
     rng: np.random.Generator,
 ) -> Reservoir:
-    """Up to ``num_grasps`` reachable grasps of one pose (``caster``: the posed
-    mesh), drawn with ``rng``."""
+    """Up to ``num_grasps`` antipodal grasps of one pose (``caster``: the posed
+    mesh), drawn with ``rng`` (see the module docstring)."""
     tri, nrm, area = _side_faces(caster)
     K = num_grasps
     center = np.zeros((K, 3))
@@ -364,7 +397,8 @@ def sample_reservoir(
         ex = execute(caster, hmap, c, a)
         w = np.zeros(len(c))
         w[ex.live] = np.linalg.norm(ex.x2 - ex.x1, axis=1)
-        sel = np.flatnonzero(ex.ok)[: K - count]
+        antipodal = force_closure(ex, np.full(len(c), SAMPLING_FRICTION))
+        sel = np.flatnonzero(antipodal)[: K - count]
         n = len(sel)
         center[count : count + n] = c[sel]
         axis[count : count + n] = a[sel]

@@ -3,12 +3,20 @@
 Units. Every length inside precompute is in metres. A mesh file carries no unit, so
 the caller names it: the Dex-Net meshes are in metres and the EGAD! meshes in
 millimetres (see :mod:`precompute.catalog`); ``--units`` does it for a user's mesh.
-Scale policy: the unit is converted and nothing else -- no rescaling to a common
-size. The EGAD! evaluation objects were designed to be printed at this size (longest
-side about 100 mm) and the Dex-Net meshes are already at their physical size (70-120
-mm), so both sets are graspable by the same 80 mm gripper. A mesh whose longest side
-is outside [5 mm, 1 m] after conversion is refused, with a hint when another unit
-would fit (the usual mistake is a millimetre mesh read as metres).
+A mesh whose longest side is outside [5 mm, 1 m] after conversion is refused, with
+a hint when another unit would fit (the usual mistake is a millimetre mesh read as
+metres).
+
+Size (``fit``, SPEC §6). ``"none"`` keeps the mesh at its file size: the Dex-Net
+meshes are the physical size they were printed at (70-120 mm). ``"egad"`` applies
+EGAD!'s own rule for a gripper of opening w = :data:`precompute.grasps.OPENING`
+(dougsm/egad, ``scripts/prepare_meshes.py``; the paper, quoted in dougsm/egad#9:
+"minimum bounding box dimension is no more than 80 % of the gripper width"): scale
+so that the largest side of the oriented bounding box equals w, then, if the
+smallest side exceeds 0.8 w, scale down so that it equals 0.8 w. The EGAD! files
+are at the generator's size (median 92 x 99 x 100 mm), which no 80 mm gripper
+could hold; the rule scales them by 0.64-0.80. The factor applied is recorded in
+``LoadedMesh.scale`` (file units -> metres, the rule included).
 
 Repair, in this order (each one is recorded in ``LoadedMesh.repairs``):
 
@@ -39,10 +47,16 @@ import numpy as np
 
 from .errors import PrecomputeError
 
-__all__ = ["UNITS", "LoadedMesh", "load_mesh", "file_sha256"]
+__all__ = ["UNITS", "FITS", "LoadedMesh", "load_mesh", "file_sha256", "egad_factor"]
 
 #: Length units a mesh file may be in, with their size in metres.
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+
+#: Size rules a mesh may be loaded with (see the module docstring).
+FITS = ("none", "egad")
+#: EGAD!'s cap on the smallest side of the oriented bounding box, as a fraction of
+#: the gripper opening (dougsm/egad, ``scripts/prepare_meshes.py``).
+EGAD_MIN_SIDE = 0.8
 
 _MIN_SIZE = 0.005  # m, smallest longest side accepted
 _MAX_SIZE = 1.0  # m, largest longest side accepted
@@ -57,8 +71,9 @@ class LoadedMesh:
     path: Path
     vertices: np.ndarray  # [V, 3] float64, metres
     faces: np.ndarray  # [F, 3] int64
-    scale: float  # file units -> metres
+    scale: float  # file units -> metres (the unit and the size rule)
     units: str
+    fit: str  # size rule applied: "none" or "egad"
     repairs: tuple[str, ...]  # what was repaired, in words
     sha256: str  # of the file's bytes
 
@@ -85,8 +100,20 @@ def _refuse(path: Path, defect: str) -> PrecomputeError:
     return PrecomputeError(f"{path}: {defect}")
 
 
-def load_mesh(path: str | Path, units: str = "m") -> LoadedMesh:
-    """Load, convert to metres, repair and check the mesh at ``path``.
+def egad_factor(extents, width: float) -> float:
+    """EGAD!'s scale factor for a mesh whose oriented bounding box has sides
+    ``extents`` [3], for a gripper of opening ``width``: the largest side becomes
+    ``width``; then the smallest side is capped at ``EGAD_MIN_SIDE * width``."""
+    ext = np.sort(np.asarray(extents, np.float64))
+    factor = width / ext[2]
+    if ext[0] * factor > EGAD_MIN_SIDE * width:
+        factor = EGAD_MIN_SIDE * width / ext[0]
+    return float(factor)
+
+
+def load_mesh(path: str | Path, units: str = "m", fit: str = "none") -> LoadedMesh:
+    """Load, convert to metres, repair, size (``fit``) and check the mesh at
+    ``path``.
 
     Raises :class:`PrecomputeError` naming the file and the defect.
     """
@@ -96,6 +123,10 @@ def load_mesh(path: str | Path, units: str = "m") -> LoadedMesh:
     if units not in UNITS:
         raise PrecomputeError(
             f"unknown unit '{units}' for {path} (choose one of {', '.join(UNITS)})"
+        )
+    if fit not in FITS:
+        raise PrecomputeError(
+            f"unknown size rule '{fit}' for {path} (choose one of {', '.join(FITS)})"
         )
     if not path.exists():
         raise _refuse(path, "no such file")
@@ -194,15 +225,31 @@ def load_mesh(path: str | Path, units: str = "m") -> LoadedMesh:
     if open_before and not any("holes" in r or "rebuilt" in r for r in repairs):
         repairs.append(f"closed holes ({open_before} open edges)")
     _check_size(path, result, units)
+    vertices = np.asarray(result.vertices, np.float64)
+    if fit == "egad":
+        from .grasps import OPENING
+
+        factor = egad_factor(_obb_extents(result), OPENING)
+        vertices = vertices * factor
+        scale *= factor
     return LoadedMesh(
         path=path,
-        vertices=np.ascontiguousarray(result.vertices, np.float64),
+        vertices=np.ascontiguousarray(vertices, np.float64),
         faces=np.ascontiguousarray(result.faces, np.int64),
         scale=scale,
         units=units,
+        fit=fit,
         repairs=tuple(repairs),
         sha256=hashlib.sha256(data).hexdigest(),
     )
+
+
+def _obb_extents(mesh) -> np.ndarray:
+    """[3] sides of the minimum-volume oriented bounding box (trimesh)."""
+    import trimesh
+
+    _, extents = trimesh.bounds.oriented_bounds(mesh)
+    return np.asarray(extents, np.float64)
 
 
 def _close_piece(path: Path, piece, repairs: list[str]):

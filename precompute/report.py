@@ -197,7 +197,9 @@ def pose_figure(pb, info, path: Path, panel: int = 150) -> Path:
             continue
         ok = np.flatnonzero(pb.valid[0, s])
         transform = pb.pose_transform[s]
-        scale = render.choose_scale(mesh.vertices, transform, pb.grasp_center[0, s, ok])
+        scale = render.problem_scale(
+            pb, mesh.vertices, transform, pb.grasp_center[0, s, ok]
+        )
         verts = render.pose_vertices(mesh.vertices, transform, scale)
         img = render.render(verts, mesh.faces, size=panel)
         ax.imshow(img.image, interpolation="antialiased")

@@ -22,6 +22,7 @@ class Task:
     name: str
     set_name: str
     dest: Path
+    fit: str = "none"  # size rule (precompute.mesh.FITS)
 
 
 def build_many(infos, *, out: Path, params, jobs: int = 1, progress: bool = True):
@@ -29,7 +30,8 @@ def build_many(infos, *, out: Path, params, jobs: int = 1, progress: bool = True
     from .build import problem_path
 
     tasks = [
-        Task(i.mesh_path, i.units, i.name, i.set, problem_path(i, out)) for i in infos
+        Task(i.mesh_path, i.units, i.name, i.set, problem_path(i, out), i.fit)
+        for i in infos
     ]
     return run_tasks(tasks, params=params, jobs=jobs, progress=progress)
 
@@ -52,6 +54,7 @@ def _run_one(task: Task, params, messages=None) -> tuple[str, float, int]:
     problem = build_problem(
         task.mesh_path,
         units=task.units,
+        fit=task.fit,
         name=task.name,
         set_name=task.set_name,
         params=params,

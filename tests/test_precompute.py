@@ -8,7 +8,7 @@ import trimesh
 
 from precompute import catalog
 from precompute.errors import PrecomputeError
-from precompute.mesh import load_mesh
+from precompute.mesh import egad_factor, load_mesh
 from precompute.poses import (
     TILT_SIGMA_DEG,
     hull_model,
@@ -170,6 +170,44 @@ def test_every_shipped_mesh_loads_watertight():
         m = load_mesh(info.mesh_path, info.units)
         tm = m.trimesh()
         assert tm.is_watertight and tm.volume > 0, info.name
+
+
+# ------------------------------------------------------------- EGAD's size rule
+
+
+def test_egad_rule_by_hand():
+    # largest side -> 80 mm; the smallest then 56 mm, under the 64 mm cap
+    assert egad_factor((100.0, 90.0, 70.0), 80.0) == pytest.approx(0.8)
+    # 100 x 95 x 90 would become 80 x 76 x 72: the smallest side is capped at 64
+    assert egad_factor((90.0, 100.0, 95.0), 80.0) == pytest.approx(64.0 / 90.0)
+
+
+def test_egad_like_mesh_is_scaled_to_the_gripper(tmp_path):
+    box = _box((100.0, 90.0, 70.0))
+    # turned out of the axes: the rule reads the oriented bounding box
+    box.apply_transform(trimesh.transformations.rotation_matrix(0.6, [1, 2, 3]))
+    path = _write(tmp_path, "egad_like.obj", box)
+    m = load_mesh(path, "mm", fit="egad")
+    ext = np.sort(trimesh.bounds.oriented_bounds(m.trimesh())[1])
+    assert ext == pytest.approx([0.056, 0.072, 0.080], abs=1e-9)
+    assert m.scale == pytest.approx(0.0008) and m.fit == "egad"
+    plain = load_mesh(path, "mm")  # no rule: the file's size
+    assert plain.scale == 0.001
+    with pytest.raises(PrecomputeError, match="unknown size rule 'big'"):
+        load_mesh(path, "mm", fit="big")
+
+
+def test_catalogue_sizes_egad_by_its_rule_and_keeps_dexnet():
+    assert {i.fit for i in catalog.objects("egad_eval")} == {"egad"}
+    assert {i.fit for i in catalog.objects("dexnet_adv")} == {"none"}
+    for name in ("A0", "C0", "G6"):
+        info = catalog.lookup(name)
+        m = load_mesh(info.mesh_path, info.units, info.fit)
+        ext = np.sort(trimesh.bounds.oriented_bounds(m.trimesh())[1])
+        assert ext[2] <= 0.080 + 1e-6 and ext[0] <= 0.064 + 1e-6, name
+        assert ext[2] == pytest.approx(0.080, abs=1e-6) or ext[0] == pytest.approx(
+            0.064, abs=1e-6
+        )
 
 
 # --------------------------------------------------------------- stable poses
