@@ -13,9 +13,12 @@ hash of the object's name and streams 1 (grasp sampling), 2 (perturbations) and
 the same inputs give byte-identical files.
 
 Up-to-date check: a problem file records ``meta["build_hash"]``, a SHA-256 of the
-mesh file's bytes, its units, every build parameter, the gripper and prior
-constants and ``CODE_VERSION``; a file whose hash matches is not rebuilt.
-``CODE_VERSION`` is bumped whenever a change alters the output.
+mesh file's bytes, its units and size rule, every build parameter, the gripper and
+prior constants and ``CODE_VERSION``; a file whose hash matches is not rebuilt.
+``CODE_VERSION`` is bumped whenever a change alters the output. A file that differs
+only in its prior's constants (its hash matches when computed with the prior it
+records) keeps its poses, grasps and ground truth: only q is recomputed
+(:func:`reprior`), byte-identical to a full build with the new constants.
 """
 
 from __future__ import annotations
@@ -45,6 +48,8 @@ __all__ = [
     "build_problem",
     "build_hash",
     "object_key",
+    "reprior",
+    "synthetic_prior",
     "problem_path",
     "read_meta",
     "is_up_to_date",
@@ -92,8 +97,15 @@ def object_key(name: str) -> int:
 
 
 def build_hash(
-    mesh_sha256: str, units: str, name: str, params: BuildParams, fit: str = "none"
+    mesh_sha256: str,
+    units: str,
+    name: str,
+    params: BuildParams,
+    fit: str = "none",
+    prior: dict | None = None,
 ) -> str:
+    """The hash of everything a build depends on; ``prior``: the prior's constants
+    (default: the current ones)."""
     blob = json.dumps(
         {
             "mesh_sha256": mesh_sha256,
@@ -102,7 +114,7 @@ def build_hash(
             "name": name,
             "params": dataclasses.asdict(params),
             "gripper": G.gripper_params(),
-            "prior": _prior.prior_params(),
+            "prior": prior if prior is not None else _prior.prior_params(),
             "tilt": [_poses.TILT_SIGMA_DEG, _poses.TILT_ANGLES, _poses.TILT_AZIMUTHS],
             "code_version": CODE_VERSION,
         },
@@ -150,7 +162,6 @@ def build_problem(
         on_poses(P)
 
     rob = np.zeros((T, P, K), np.float32)
-    prior = np.zeros((T, P, K), np.float32)
     valid = np.zeros((T, P, K), bool)
     center = np.zeros((T, P, K, 3), np.float32)
     axis = np.zeros((T, P, K, 3), np.float32)
@@ -201,9 +212,6 @@ def build_problem(
             axis[t, s] = r.axis
             width[t, s] = r.width
             height[t, s] = r.center[:, 2]
-            eps = _prior.prior_noise(_rng(params, name, s, t, STREAM_PRIOR), K)
-            q = _prior.prior_from_noise(rob[t, s].astype(np.float64), eps)
-            prior[t, s] = np.where(r.valid, q, 0.0)
         pose_info.append(
             {
                 "landing": round(float(sp.landing[s]), 6),
@@ -216,6 +224,7 @@ def build_problem(
         if on_pose_done is not None:
             on_pose_done()
 
+    prior = synthetic_prior(params, name, rob, valid)
     landing = sp.landing / sp.landing.sum()
     topple = topple / topple.sum(axis=1, keepdims=True)
     meta = {
@@ -263,6 +272,49 @@ def build_problem(
         meta=meta,
     )
     return problem.validate()
+
+
+def synthetic_prior(
+    params: BuildParams, name: str, rob: np.ndarray, valid: np.ndarray
+) -> np.ndarray:
+    """[T, P, K] float32 synthetic q (:mod:`.prior`, current constants) of every
+    reservoir slot, 0 on padding; each (trial, pose) from its own seeded stream."""
+    T, P, K = rob.shape
+    prior = np.zeros((T, P, K), np.float32)
+    for t in range(T):
+        for s in range(P):
+            eps = _prior.prior_noise(_rng(params, name, s, t, STREAM_PRIOR), K)
+            q = _prior.prior_from_noise(rob[t, s].astype(np.float64), eps)
+            prior[t, s] = np.where(valid[t, s], q, 0.0)
+    return prior
+
+
+def reprior(path: Path, info, params: BuildParams) -> bool:
+    """Recompute the prior of the problem file at ``path`` (catalogue object
+    ``info``) with the current constants, when the file is current in everything
+    else; True when it was rewritten (False: it needs a full build)."""
+    import dataclasses as _dc
+
+    from legs_jax.problem import load, save
+
+    from .mesh import file_sha256
+
+    meta = read_meta(path)
+    if meta is None or not isinstance(meta.get("prior"), dict):
+        return False
+    mesh_sha = file_sha256(info.mesh_path)
+    old = build_hash(mesh_sha, info.units, info.name, params, info.fit, meta["prior"])
+    if meta.get("build_hash") != old:
+        return False
+    pb = load(path)
+    q = synthetic_prior(params, info.name, pb.robustness, pb.valid)
+    new_meta = dict(pb.meta)
+    new_meta["prior"] = _prior.prior_params()
+    new_meta["build_hash"] = build_hash(
+        mesh_sha, info.units, info.name, params, info.fit
+    )
+    save(_dc.replace(pb, prior=q, meta=new_meta), path)
+    return True
 
 
 def _rotate(points: np.ndarray, rot: np.ndarray) -> np.ndarray:
@@ -373,6 +425,7 @@ def ensure(
         i.name: problem_path(i, out) for i in _catalog.resolve(list(names), root=root)
     }
     todo = out_of_date(names, data_dir=root, params=params)
+    todo = [i for i in todo if not reprior(problem_path(i, out), i, params)]
     if todo:
         build_many(
             todo,

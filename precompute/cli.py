@@ -15,6 +15,9 @@ topple matrix, T reservoirs of K top-down parallel-jaw grasps per pose, the
 ground-truth success probability of every grasp (Embree ray casting under
 perturbation) and the synthetic GQ-CNN stand-in prior.
 
+A file current in everything but the prior's constants keeps its poses, grasps
+and ground truth; only its prior is recomputed.
+
 Catalogue objects go to <out>/<set>/<name>.npz (default out: the repository's
 data/problems). A mesh of your own (--mesh) goes to <out>/custom/<name>.npz with
 out defaulting to ./problems under the current folder. Up-to-date files (same
@@ -101,6 +104,7 @@ def _build(argv) -> int:
         is_up_to_date,
         problem_path,
         problems_dir,
+        reprior,
     )
     from .mesh import UNITS
     from .runner import Task, run_tasks
@@ -135,15 +139,22 @@ def _build(argv) -> int:
             infos = catalog.objects(a.set_name)
         else:
             infos = catalog.resolve(a.object)
-        tasks, skipped = [], []
+        tasks, skipped, repriored = [], [], []
         for i in infos:
             dest = problem_path(i, out)
             if not a.force and is_up_to_date(dest, expected_hash(i, params)):
                 skipped.append(dest)
+            elif not a.force and reprior(dest, i, params):
+                repriored.append(dest)
             else:
                 tasks.append(Task(i.mesh_path, i.units, i.name, i.set, dest, i.fit))
     if skipped:
         print(f"{len(skipped)} up-to-date problem file(s) skipped (--force rebuilds)")
+    if a.mesh is None and repriored:
+        print(
+            f"{len(repriored)} problem file(s) current but for the prior's constants: "
+            "prior recomputed, poses and grasps kept"
+        )
     if not tasks:
         return 0
     jobs = a.jobs if a.jobs is not None else (os.cpu_count() or 1)
