@@ -23,6 +23,7 @@ import dataclasses
 import difflib
 import hashlib
 import importlib.metadata
+import itertools
 import math
 import os
 import platform
@@ -53,20 +54,6 @@ __all__ = [
 
 # Version of the result layout; part of every configuration hash.
 RESULTS_VERSION = 1
-
-METHODS = (
-    "dexnet",
-    "k100_ub",
-    "borges_100",
-    "borges_2000",
-    "legs_no_as",
-    "legs",
-    "tql",
-)
-HPARAM_DEFAULTS = dict(
-    s=1.0, prior_offset=1.0, delta=0.05, gamma=0.2, epsilon=0.1, eta=0.1, k=100, n=100
-)
-_STATIC_HPARAMS = ("k", "n")
 
 # Sizes of --smoke: synthetic problems named like the real objects.
 SMOKE = dict(
@@ -198,55 +185,46 @@ class ExperimentPlan:
 
 
 # ----------------------------------------------------------------------- hparams
-def _check_hparam(name: str, value: Any) -> None:
-    """SPEC §4 ranges; k <= K is checked against the problems later."""
-    if name not in HPARAM_DEFAULTS:
-        known = ", ".join(HPARAM_DEFAULTS)
-        raise SweepError(f"unknown hyperparameter '{name}' (known: {known})")
-    if name in _STATIC_HPARAMS:
-        if isinstance(value, bool) or int(value) != value or value < 1:
-            raise SweepError(f"{name} must be an integer >= 1, got {value!r}")
-        return
-    v = float(value)
-    if not math.isfinite(v):
-        raise SweepError(f"{name} must be finite, got {value!r}")
-    if name in ("delta", "gamma") and not 0.0 < v < 1.0:
-        raise SweepError(f"{name} must lie in (0, 1), got {value!r}")
-    if name in ("epsilon", "eta") and not 0.0 <= v <= 1.0:
-        raise SweepError(f"{name} must lie in [0, 1], got {value!r}")
-    if name in ("s", "prior_offset") and v < 0.0:
-        raise SweepError(f"{name} must be >= 0, got {value!r}")
+def _method(spec: str):
+    """The method named ``spec`` (registered or ``module.path:ATTRIBUTE``)."""
+    from legs_jax import methods
+    from legs_jax.errors import ConfigError
+
+    try:
+        return methods.resolve(spec)
+    except ConfigError as e:
+        raise SweepError(str(e)) from None
 
 
 def make_arm(method: str, variant: str, hparams: Mapping[str, Any]) -> Arm:
-    """Resolve a declared arm: scalars and equal-length sequences (a grid, zipped)."""
-    if method not in METHODS:
-        raise SweepError(f"unknown method '{method}' (known: {', '.join(METHODS)})")
-    sizes = {
-        k: len(v)
-        for k, v in hparams.items()
-        if isinstance(v, list | tuple | np.ndarray)
-    }
-    if len(set(sizes.values())) > 1:
-        raise SweepError(f"{method}: grid sequences differ in length: {sizes}")
-    g = next(iter(sizes.values()), 1)
-    if g < 1:
-        raise SweepError(f"{method}: empty hyperparameter grid")
+    """Resolve a declared arm: scalars and equal-length sequences (a grid, zipped),
+    validated by the method's own declaration (:func:`legs_jax.methods.parse_grid`).
+    Every grid point holds every hyperparameter column of the results (the
+    method's values, and :func:`legs_jax.methods.column_defaults` for the
+    columns it does not have)."""
+    from legs_jax import methods
+    from legs_jax.errors import ConfigError
+
+    m = _method(method)
+    for k, v in hparams.items():
+        if k in m.static and isinstance(v, list | tuple | np.ndarray):
+            raise SweepError(f"{k} is static (it sets array shapes): no grid")
+    try:
+        g, values = methods.parse_grid(m, hparams)
+    except ConfigError as e:
+        raise SweepError(f"{m.name}: {e}") from None
+    columns = methods.column_defaults()
     grid = []
     for i in range(g):
-        point = dict(HPARAM_DEFAULTS)
-        for k, v in hparams.items():
-            x = v[i] if k in sizes else v
-            if k in sizes and k in _STATIC_HPARAMS:
-                raise SweepError(f"{k} is static (it sets array shapes): no grid")
-            _check_hparam(k, x)
-            point[k] = int(x) if k in _STATIC_HPARAMS else float(x)
+        point = dict(columns)
+        point.update({k: v[i].item() for k, v in values.items()})
         grid.append(tuple(sorted(point.items())))
+    sizes = {k for k, v in hparams.items() if isinstance(v, list | tuple | np.ndarray)}
     overrides = tuple(
         (k, tuple(float(x) for x in v) if k in sizes else v)
         for k, v in sorted(hparams.items())
     )
-    return Arm(method, variant, overrides, tuple(grid))
+    return Arm(m.name, variant, overrides, tuple(grid))
 
 
 # ------------------------------------------------------------------ chunk planning
@@ -256,38 +234,31 @@ def _pose_bucket(p: int) -> int:
     return 1 << max(0, (p - 1).bit_length())
 
 
-def _candidates(method: str, k: int, K: int) -> float:
-    """Candidate grasps whose posterior a step touches (cost model)."""
-    if method in ("dexnet", "k100_ub"):
-        return 1.0
-    if method in ("borges_100",):
-        return float(min(100, K))
-    if method == "legs":
-        return float(min(k, K))
-    if method == "tql":
-        return K / 8.0  # no sampling: a masked argmax
-    return float(K)
+def _rollout_work(arm: Arm, P: int, K: int, horizon: int, check_every: int) -> float:
+    """Cost model: the candidate grasps a step touches (the method's declared
+    ``cost``; about one exact Beta draw each) plus a fixed cost a step, and the
+    Dirichlet checks."""
+    from legs_jax.methods.base import Config
 
-
-def _rollout_work(
-    method: str, k: int, P: int, K: int, horizon: int, check_every: int
-) -> float:
-    steps = horizon * (_candidates(method, k, K) + 32.0)
+    m = _method(arm.method)
+    point = dict(arm.grid[0])
+    cfg = Config(num_poses=P, num_grasps=K, **{n: point[n] for n in m.static})
+    steps = horizon * (m.cost(cfg) + 32.0)
     n_checks = horizon // check_every if check_every else 0
     return steps + n_checks * DIRICHLET_SAMPLES * (P + 1)
 
 
 def _trial_memory(
-    P: int, K: int, G: int, R: int, cfg: ExperimentPlan, act: bool
+    P: int, K: int, G: int, R: int, cfg: ExperimentPlan, act: int
 ) -> float:
     """Bytes a chunk holds per (object, trial): the engine's tables of the pair
     (p, q, masks, rankings: about 20 bytes a grasp slot) and the results of its
-    G x R rollouts. The rollout state itself lives in the engine's mini-batches."""
+    G x R rollouts (``act``: slots of a recorded active set, 0 for none). The
+    rollout state itself lives in the engine's mini-batches."""
     c1 = cfg.horizon // cfg.record_every + 2
     c2 = cfg.horizon // cfg.check_every + 1
     per_rollout = (c1 + 4 * c2) * 4 + 256
-    if act:
-        per_rollout += c2 * P * HPARAM_DEFAULTS["k"] * 4
+    per_rollout += c2 * P * act * 4
     return P * K * 20 + G * R * per_rollout
 
 
@@ -317,7 +288,6 @@ def plan_chunks(
     chunks: list[Chunk] = []
     for a, arm in enumerate(cfg.arms):
         G = len(arm.grid)
-        k = int(arm.grid[0][[n for n, _ in arm.grid[0]].index("k")][1])
         record_checks = arm.method in cfg.check_methods
         record_act = arm.method in cfg.active_set_methods
         groups: OrderedDict[tuple[int, int], list[int]] = OrderedDict()
@@ -325,8 +295,9 @@ def plan_chunks(
             groups.setdefault((_pose_bucket(o.num_poses), o.num_grasps), []).append(i)
         for (P, K), members in groups.items():
             every = cfg.check_every if record_checks else 0
-            w = _rollout_work(arm.method, k, P, K, cfg.horizon, every)
-            m = _trial_memory(P, K, G, cfg.rollouts, cfg, record_act)
+            w = _rollout_work(arm, P, K, cfg.horizon, every)
+            width = int(dict(arm.grid[0]).get("k", 100)) if record_act else 0
+            m = _trial_memory(P, K, G, cfg.rollouts, cfg, width)
             per_trial = G * cfg.rollouts
             cap = int(min(work_budget / (per_trial * w), memory_budget / m))
             cap = max(1, cap)
@@ -625,7 +596,19 @@ def build_parser() -> argparse.ArgumentParser:
         "--methods",
         nargs="+",
         metavar="NAME",
-        help=f"keep only these methods of each experiment: {', '.join(METHODS)}",
+        help="run only these methods (separated by spaces or commas): registered "
+        "names (python -c 'from legs_jax import methods; print(methods.names())') "
+        "or module.path:ATTRIBUTE for a method of your own; a method that no "
+        "experiment declares (your own, or an extra such as Bayes-UCB) runs in each "
+        "selected experiment with its default hyperparameters",
+    )
+    what.add_argument(
+        "--grid",
+        nargs="+",
+        metavar="NAME=V1,V2",
+        help="run the --methods on this hyperparameter grid (every combination of "
+        "the values, as one batch axis: one compile), e.g. --grid "
+        "delta=0.01,0.05,0.1 s=0,1,2; results carry the values in their columns",
     )
     size = p.add_argument_group("sizes (default: each experiment's own)")
     size.add_argument("--trials", type=_positive_int, help="trials T (reservoirs)")
@@ -683,9 +666,36 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _split_commas(values: Sequence[str] | None) -> list[str] | None:
+    if values is None:
+        return None
+    return [x for v in values for x in v.split(",") if x]
+
+
+def _parse_grid(p: argparse.ArgumentParser, items: Sequence[str]) -> dict[str, Any]:
+    """``NAME=V1,V2 ...`` -> the product of the values as zipped sequences."""
+    axes: dict[str, list[float]] = {}
+    for item in items:
+        name, eq, text = item.partition("=")
+        if not eq or not name or not text:
+            p.error(f"--grid: expected NAME=V1,V2,..., got {item!r}")
+        if name in axes:
+            p.error(f"--grid: {name} given twice")
+        try:
+            axes[name] = [float(x) for x in text.split(",") if x]
+        except ValueError:
+            p.error(f"--grid: {name} takes numbers, got {text!r}")
+        if not axes[name]:
+            p.error(f"--grid: no value for {name}")
+    points = list(itertools.product(*axes.values()))
+    return {n: tuple(pt[i] for pt in points) for i, n in enumerate(axes)}
+
+
 def _validate_args(p: argparse.ArgumentParser, a: argparse.Namespace) -> None:
     if a.all and a.experiment:
         p.error("use either --all or --experiment, not both")
+    if a.problems and not a.all and not a.experiment and not a.smoke:
+        a.experiment = ["main"]  # problem files alone: the main configuration
     if not a.all and not a.experiment and not a.smoke:
         p.error("nothing to run: pass --all, --experiment NAME or --smoke")
     for e in a.experiment or ():
@@ -693,11 +703,23 @@ def _validate_args(p: argparse.ArgumentParser, a: argparse.Namespace) -> None:
             near = difflib.get_close_matches(e, EXPERIMENTS, n=1)
             hint = f"; did you mean {near[0]}?" if near else ""
             p.error(f"unknown experiment '{e}' (known: {', '.join(EXPERIMENTS)}){hint}")
+    a.methods = _split_commas(a.methods)
+    if a.methods is not None and not a.methods:
+        p.error("--methods: no method named")
+    from legs_jax import methods
+
+    known = methods.names()
     for m in a.methods or ():
-        if m not in METHODS:
-            near = difflib.get_close_matches(m, METHODS, n=1)
+        if m not in known and ":" not in m:
+            near = difflib.get_close_matches(m, known, n=1)
             hint = f"; did you mean {near[0]}?" if near else ""
-            p.error(f"unknown method '{m}' (known: {', '.join(METHODS)}){hint}")
+            p.error(
+                f"unknown method '{m}' (known: {', '.join(known)}; or "
+                f"module.path:ATTRIBUTE for a method of your own){hint}"
+            )
+    a.grid = _parse_grid(p, a.grid) if a.grid else None
+    if a.grid is not None and not a.methods:
+        p.error("--grid needs --methods: the methods to run on the grid")
     if a.objects and a.problems:
         p.error("use either --objects or --problems, not both")
     for f in a.problems or ():
@@ -752,11 +774,7 @@ def _experiment_plan(
     import sweeps
 
     mod = sweeps.get(name)
-    arms = []
-    for method, variant, hp in mod.ARMS:
-        if a.methods and method not in a.methods:
-            continue
-        arms.append(make_arm(method, variant, hp))
+    arms = _arms(mod.ARMS, a.methods, a.grid, getattr(a, "declared", set()))
     if not arms:
         return None
     trials = a.trials or (SMOKE["trials"] if a.smoke else mod.TRIALS)
@@ -800,6 +818,36 @@ def _experiment_plan(
     return plan
 
 
+def _arms(
+    own_arms: Sequence[tuple[str, str, Mapping[str, Any]]],
+    requested: Sequence[str] | None,
+    grid: Mapping[str, Any] | None,
+    declared: set[str] | frozenset[str] = frozenset(),
+) -> list[Arm]:
+    """The arms to run: the experiment's own, or those of the ``requested``
+    methods (a method that no experiment declares, not in ``declared``, such as
+    the user's own, runs with its defaults); with a ``grid``, one arm per
+    requested method on it."""
+    if not requested:
+        return [make_arm(m, v, hp) for m, v, hp in own_arms]
+    arms: list[Arm] = []
+    for spec in requested:
+        name = _method(spec).name
+        if grid is not None:
+            arms.append(make_arm(spec, "", grid))
+            continue
+        own = [make_arm(m, v, hp) for m, v, hp in own_arms if m == name]
+        if not own and name not in declared:
+            own = [make_arm(spec, "", {})]
+        arms.extend(own)
+    labels = [a.label for a in arms]
+    if len(set(labels)) != len(labels):
+        raise SweepError(f"--methods names a method twice: {', '.join(labels)}")
+    order = {m: i for i, (m, _, _) in enumerate(own_arms)}
+    arms.sort(key=lambda a: order.get(a.method, len(order)))
+    return arms
+
+
 class _ProblemsMissing(Exception):
     """Dry run: these catalogue problem files would be built first."""
 
@@ -836,6 +884,8 @@ def _catalog_problems(
 
 
 def _check_plan(plan: ExperimentPlan) -> None:
+    from legs_jax.errors import ConfigError
+
     for o in plan.objects:
         if plan.trials > o.num_trials:
             raise SweepError(
@@ -843,12 +893,14 @@ def _check_plan(plan: ExperimentPlan) -> None:
                 f"--trials {plan.trials} asked for more"
             )
         for arm in plan.arms:
-            k = dict(arm.grid[0])["k"]
-            if arm.method in ("legs",) and k > o.num_grasps:
-                raise SweepError(
-                    f"{plan.name}: k={k} exceeds the {o.num_grasps} grasps per pose "
-                    f"of '{o.name}'"
-                )
+            m = _method(arm.method)
+            if m.check is None:
+                continue
+            hp = {n: np.array([dict(g)[n] for g in arm.grid]) for n in m.defaults()}
+            try:
+                m.check(hp, o.num_grasps)
+            except ConfigError as e:
+                raise SweepError(f"{plan.name}: {e} ('{o.name}')") from None
     if plan.check_every > plan.horizon and plan.check_methods:
         # No check would happen: record none rather than refuse.
         plan.check_methods = ()
@@ -1612,6 +1664,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     started = False
     try:
+        import sweeps
         from legs_jax.errors import ConfigError
         from legs_jax.problem import ProblemFileError
 
@@ -1619,6 +1672,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         devices = _devices(a.devices)
         _compile_cache(a.compile_cache)
         catalog = _catalog()
+        a.declared = {m for n in EXPERIMENTS for m, _, _ in sweeps.get(n).ARMS}
         plans = []
         for name in names:
             try:

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy import stats
-from test_methods import CFG_KN, ODD, RUN, conformance_problem, shared_run
+from test_methods import CFG_KN, ODD, RUN, conformance_problem, own, shared_run
 
 from legs_jax import reference as ref
 from legs_jax import sampling
@@ -46,7 +46,8 @@ def engine_result(name: str) -> dict[str, np.ndarray]:
 @functools.cache
 def reference_result(name: str) -> dict[str, np.ndarray]:
     r = ref.run(
-        _problem(), name, trials=[0, 1], num_rollouts=R_REF, hparams=CFG_KN, seed=0,
+        _problem(), name, trials=[0, 1], num_rollouts=R_REF,
+        hparams=own(name, **CFG_KN), seed=0,
         horizon=RUN["horizon"], record_every=RUN["record_every"],
         check_every=RUN["check_every"],
     )  # fmt: skip
@@ -173,7 +174,8 @@ def test_parity_unusual_hyperparameters(name):
     rollouts against 128 reference rollouts."""
     e = {k: v[2] for k, v in shared_run(name).items()}
     r = ref.run(
-        _problem(), name, trials=[0, 1], num_rollouts=64, hparams=dict(CFG_KN, **ODD),
+        _problem(), name, trials=[0, 1], num_rollouts=64,
+        hparams=own(name, **CFG_KN, **ODD),
         seed=1, horizon=RUN["horizon"], record_every=RUN["record_every"],
         check_every=RUN["check_every"],
     )  # fmt: skip

@@ -22,7 +22,7 @@ import pytest
 import sweep_fakes
 
 import sweeps
-from legs_jax import problem, results, sweep, synthetic
+from legs_jax import methods, problem, results, sweep, synthetic
 
 
 # ---------------------------------------------------------------------- helpers
@@ -106,7 +106,7 @@ def test_experiment_modules_declare_valid_arms(name):
 
 def test_paper_grids_and_extra_row():
     main = [sweep.make_arm(*a) for a in sweeps.get("main").ARMS]
-    assert {a.method for a in main} == set(sweep.METHODS)
+    assert {a.method for a in main} == set(methods.names())
     orig = [a for a in main if a.variant == "orig_prior"]
     assert len(orig) == 1 and orig[0].method == "borges_2000"
     assert dict(orig[0].grid[0])["prior_offset"] == 0.0
@@ -125,12 +125,17 @@ def test_paper_grids_and_extra_row():
     )
 
 
-def test_methods_and_defaults_match_the_engine_contract():
-    # The CLI checks names before JAX starts, so it keeps its own copy.
-    engine = pytest.importorskip("legs_jax.engine")
-    assert sweep.METHODS == engine.METHODS
-    assert sweep.HPARAM_DEFAULTS == engine.HPARAM_DEFAULTS
-    assert sweep._STATIC_HPARAMS == engine.STATIC_HPARAMS
+def test_arms_hold_every_result_column():
+    """A method's own hyperparameters with their values, the other columns with
+    the defaults of the methods declaring them."""
+    cols = methods.column_defaults()
+    for name in methods.names():
+        (point,) = sweep.make_arm(name, "", {}).grid
+        assert dict(point) == {**cols, **methods.get(name).defaults()}
+    (point,) = sweep.make_arm("tql", "", {"epsilon": 0.3}).grid
+    assert dict(point)["epsilon"] == 0.3 and dict(point)["k"] == 100
+    with pytest.raises(sweep.SweepError, match="unknown hyperparameter.*of tql"):
+        sweep.make_arm("tql", "", {"delta": 0.1})
 
 
 @pytest.mark.parametrize(
@@ -143,7 +148,7 @@ def test_methods_and_defaults_match_the_engine_contract():
         ({"epsilon": 1.1}, "epsilon"),
         ({"k": 0}, "k must be"),
         ({"k": (50, 100)}, "static"),
-        ({"s": (1.0, 2.0), "delta": (0.1,)}, "differ in length"),
+        ({"s": (1.0, 2.0), "delta": (0.1,)}, "equal lengths"),
         ({"bogus": 1}, "unknown hyperparameter"),
     ],
 )
@@ -198,7 +203,8 @@ def test_plan_covers_every_run_once_and_is_deterministic():
 
 def test_plan_splits_trials_when_one_object_is_too_big():
     plan = _plan([_obj("a", 4, 2000)], [("borges_2000", "", {})], trials=10)
-    per_trial = 2 * sweep._rollout_work("borges_2000", 100, 4, 2000, 300, 0)
+    arm = sweep.make_arm("borges_2000", "", {})
+    per_trial = 2 * sweep._rollout_work(arm, 4, 2000, 300, 0)
     chunks = sweep.plan_chunks(plan, work_budget=3.5 * per_trial)
     sizes = [len(c.trials) for c in chunks]
     assert len(chunks) > 1 and sum(sizes) == 10 and max(sizes) - min(sizes) <= 1
@@ -216,7 +222,7 @@ def test_chunk_hash_depends_on_results_inputs_only():
 
 # --------------------------------------------------------------------- tables
 def _ctx(grid_points=1, trials=(0, 1), rollouts=2, **kw):
-    grid = [dict(sweep.HPARAM_DEFAULTS, s=float(g)) for g in range(grid_points)]
+    grid = [dict(methods.column_defaults(), s=float(g)) for g in range(grid_points)]
     return results.ChunkContext(
         experiment="main",
         method="legs",

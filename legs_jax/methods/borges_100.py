@@ -1,7 +1,8 @@
 """BORGES (K=100): Thompson sampling over the fixed top-100 grasps by q (SPEC §4)."""
 
+from legs_jax import reference as ref
 from legs_jax.methods import _slots
-from legs_jax.methods.base import Method
+from legs_jax.methods.base import TOP_FIXED, Method
 
 METHOD = Method(
     name="borges_100",
@@ -14,4 +15,9 @@ METHOD = Method(
     recommend_init=_slots.recommend_init,
     estimates=_slots.estimates,
     candidates=_slots.candidates,
+    label="BORGES (K_s=100)",
+    short_label="BORGES-100",
+    style=dict(color="#ff7f0e", ls="-", lw=1.6),
+    cost=lambda cfg: float(cfg.top),
+    reference=lambda problem, trial, hp: ref.Borges(problem, trial, hp, top=TOP_FIXED),
 )

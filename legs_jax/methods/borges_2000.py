@@ -1,5 +1,6 @@
 """BORGES (K=2000): Thompson sampling over every grasp of the pose (SPEC §4)."""
 
+from legs_jax import reference as ref
 from legs_jax.methods import _dense
 from legs_jax.methods.base import Method
 
@@ -14,4 +15,9 @@ METHOD = Method(
     recommend_init=_dense.recommend_init,
     estimates=_dense.estimates,
     candidates=_dense.candidates,
+    label="BORGES (K_s=2000)",
+    short_label="BORGES-2000",
+    style=dict(color="#2ca02c", ls="-", lw=1.6),
+    dense=True,
+    reference=lambda problem, trial, hp: ref.Borges(problem, trial, hp, top=None),
 )
