@@ -230,12 +230,24 @@ def _label_columns(ctx: ChunkContext, ix: dict[str, np.ndarray]) -> dict[str, An
 
 
 def _hparam_columns(ctx: ChunkContext, g: np.ndarray) -> dict[str, np.ndarray]:
+    """``HPARAM_COLUMNS``, then any other hyperparameter of the method (a user's
+    method's own, float64) in name order."""
+    extra = sorted(set(ctx.grid[0]) - set(HPARAM_COLUMNS))
     cols = {}
-    for c in HPARAM_COLUMNS:
+    for c in (*HPARAM_COLUMNS, *extra):
         dtype = np.int64 if c in _INT_HPARAMS else np.float64
         vals = np.array([gp[c] for gp in ctx.grid], dtype=dtype)
         cols[c] = vals[g]
     return cols
+
+
+def _with_extra(columns: Sequence[str], df: pd.DataFrame) -> list[str]:
+    """``columns`` with the extra hyperparameter columns of ``df`` (those of a
+    user's method, :func:`_hparam_columns`) after ``HPARAM_COLUMNS``."""
+    known = {*_RUN_COLUMNS, *_CHECK_COLUMNS, *_INTERNAL_COLUMNS}
+    extra = sorted(c for c in df.columns if c not in known)
+    at = list(columns).index(HPARAM_COLUMNS[-1]) + 1
+    return [*columns[:at], *extra, *columns[at:]]
 
 
 def _frame(cols: dict[str, Any], n: int) -> pd.DataFrame:
@@ -481,6 +493,10 @@ _CHECK_COLUMNS = [
 ]
 
 
+# Columns of the chunk tables that the merged tables drop or keep elsewhere.
+_INTERNAL_COLUMNS = ("grid_index", "gap_curve")
+
+
 def _read(path: Path) -> pd.DataFrame:
     return pq.read_table(path).to_pandas()
 
@@ -536,12 +552,17 @@ def merge_chunks(
 
     runs = order(pd.concat(parts["runs"], ignore_index=True), ["trial", "rollout"])
     curves = _aggregate_curves(runs, np.asarray(curve_steps or [], np.int64))
-    out = {"runs": runs[_RUN_COLUMNS].reset_index(drop=True), "curves": curves}
+    out = {
+        "runs": runs[_with_extra(_RUN_COLUMNS, runs)].reset_index(drop=True),
+        "curves": curves,
+    }
     if parts["checks"]:
         checks = order(
             pd.concat(parts["checks"], ignore_index=True), ["trial", "rollout", "step"]
         )
-        out["checks"] = checks[_CHECK_COLUMNS].reset_index(drop=True)
+        out["checks"] = checks[_with_extra(_CHECK_COLUMNS, checks)].reset_index(
+            drop=True
+        )
     else:
         out["checks"] = pd.DataFrame({c: [] for c in _CHECK_COLUMNS})
     if parts["active_set"]:
@@ -551,10 +572,13 @@ def merge_chunks(
 
 
 def _aggregate_curves(runs: pd.DataFrame, steps: np.ndarray) -> pd.DataFrame:
-    columns = [*_GROUP_COLUMNS, "step", "gap_mean", "gap_se", "n_runs"]
+    group = _with_extra(_GROUP_COLUMNS, runs)
+    columns = [*group, "step", "gap_mean", "gap_se", "n_runs"]
     if runs.empty:
         return pd.DataFrame({c: [] for c in columns})
-    keys = runs[_GROUP_COLUMNS + ["grid_index"]]
+    # The arm and its grid point fix every hyperparameter (NaN in a column that
+    # only a user's method has would never compare equal).
+    keys = runs[["experiment", "set", "object", "method", "variant", "grid_index"]]
     # Runs are sorted, so each group is one contiguous block.
     change = np.ones(len(runs), bool)
     change[1:] = (keys.iloc[1:].to_numpy() != keys.iloc[:-1].to_numpy()).any(axis=1)
@@ -571,7 +595,7 @@ def _aggregate_curves(runs: pd.DataFrame, steps: np.ndarray) -> pd.DataFrame:
             if n > 1
             else np.full_like(mean, np.nan)
         )
-        head = {c: runs[c].iloc[a] for c in _GROUP_COLUMNS}
+        head = {c: runs[c].iloc[a] for c in group}
         frame = pd.DataFrame({c: [v] * len(steps) for c, v in head.items()})
         frame["step"] = steps
         frame["gap_mean"] = mean

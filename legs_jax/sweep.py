@@ -606,8 +606,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--grid",
         nargs="+",
         metavar="NAME=V1,V2",
-        help="run the --methods on this hyperparameter grid (every combination of "
-        "the values, as one batch axis: one compile), e.g. --grid "
+        help="run the --methods that have these hyperparameters on this grid (every "
+        "combination of the values, as one batch axis: one compile), e.g. --grid "
         "delta=0.01,0.05,0.1 s=0,1,2; results carry the values in their columns",
     )
     size = p.add_argument_group("sizes (default: each experiment's own)")
@@ -826,14 +826,23 @@ def _arms(
 ) -> list[Arm]:
     """The arms to run: the experiment's own, or those of the ``requested``
     methods (a method that no experiment declares, not in ``declared``, such as
-    the user's own, runs with its defaults); with a ``grid``, one arm per
-    requested method on it."""
+    the user's own, runs with its defaults); with a ``grid``, each requested
+    method that has all of its hyperparameters runs on it instead."""
     if not requested:
         return [make_arm(m, v, hp) for m, v, hp in own_arms]
     arms: list[Arm] = []
+    if grid is not None:
+        names = [_method(spec).defaults() for spec in requested]
+        for g in grid:
+            if not any(g in known for known in names):
+                raise SweepError(
+                    f"--grid: {g} is not a hyperparameter of "
+                    f"{' or '.join(_method(x).name for x in requested)}"
+                )
     for spec in requested:
-        name = _method(spec).name
-        if grid is not None:
+        m = _method(spec)
+        name = m.name
+        if grid is not None and set(grid) <= set(m.defaults()):
             arms.append(make_arm(spec, "", grid))
             continue
         own = [make_arm(m, v, hp) for m, v, hp in own_arms if m == name]
@@ -1638,6 +1647,19 @@ def finish_experiment(
     return "complete"
 
 
+def _check_user_methods(plans: Sequence[ExperimentPlan], quiet: bool) -> None:
+    """Run the conformance checks on every method from outside the package
+    (:mod:`legs_jax.methods.conformance`) before any chunk; a failure is a
+    one-line error."""
+    from legs_jax import methods
+    from legs_jax.methods import conformance
+
+    names = {a.method for p in plans for a in p.arms}
+    for name in sorted(n for n in names if not methods.builtin(n)):
+        _say(f"{name}: conformance checks (jit, jit-vmap, masks, finite)", quiet)
+        conformance.check(methods.get(name))
+
+
 def _print_plan(plan: ExperimentPlan, out: Path) -> None:
     d = _exp_dir(out, plan.name)
     done = sum(1 for c in plan.chunks if res.chunk_done(d / "chunks", c.id))
@@ -1696,6 +1718,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             for plan in plans:
                 _print_plan(plan, out)
             return 0
+        _check_user_methods(plans, a.quiet)
         # Refuse conflicting results of any experiment before running anything
         # (or, with --overwrite, delete them: the leader does, the others wait).
         for plan in plans:

@@ -23,6 +23,7 @@ from legs_jax.methods.base import Method
 
 __all__ = [
     "Method",
+    "builtin",
     "column_defaults",
     "get",
     "names",
@@ -111,15 +112,21 @@ def resolve(spec: str | Method) -> Method:
     return register(method)
 
 
+def builtin(name: str) -> bool:
+    """Whether ``name`` is one of this package's methods (not the user's)."""
+    return name in _MODULES
+
+
 def column_defaults() -> dict[str, float | int]:
-    """The hyperparameter columns of the result tables and the value each holds
-    for a method that does not have that hyperparameter: every hyperparameter of
-    the registered methods, with the default of the first method declaring it."""
+    """The hyperparameter columns every result row carries and the value each
+    holds for a method that does not have that hyperparameter: every
+    hyperparameter of this package's methods, with the default of the first
+    method declaring it. (A user's method adds its own columns to its rows.)"""
     _load()
     out: dict[str, float | int] = {}
-    for m in _REGISTRY.values():
-        for name, value in m.defaults().items():
-            out.setdefault(name, value)
+    for name in _MODULES:
+        for hp, value in _REGISTRY[name].defaults().items():
+            out.setdefault(hp, value)
     return out
 
 
