@@ -71,6 +71,7 @@ __all__ = [
     "merge_chunks",
     "read_chunk_meta",
     "sha256_file",
+    "verify_chunk",
     "write_chunk",
 ]
 
@@ -388,7 +389,8 @@ def write_chunk(
     meta: Mapping[str, Any],
 ) -> bool:
     """Write a finished chunk atomically: tables and ``chunk.json`` into a temporary
-    folder, then rename it to ``chunks_dir/chunk_id``.
+    folder, then rename it to ``chunks_dir/chunk_id``. ``chunk.json`` records the
+    SHA-256 of every table file (``files``), which :func:`verify_chunk` checks.
 
     Returns False (and writes nothing) when another process finished the same
     chunk first.
@@ -401,9 +403,11 @@ def write_chunk(
         shutil.rmtree(tmp)
     tmp.mkdir()
     try:
+        files = {}
         for name, df in tables.items():
             atomic_write_parquet(df, tmp / f"{name}.parquet")
-        atomic_write_json(dict(meta), tmp / CHUNK_META)
+            files[f"{name}.parquet"] = sha256_file(tmp / f"{name}.parquet")
+        atomic_write_json({**meta, "files": files}, tmp / CHUNK_META)
         for f in tmp.iterdir():
             with open(f, "rb") as fh:
                 os.fsync(fh.fileno())
@@ -423,6 +427,33 @@ def write_chunk(
 
 def chunk_done(chunks_dir: str | os.PathLike, chunk_id: str) -> bool:
     return (Path(chunks_dir) / chunk_id / CHUNK_META).is_file()
+
+
+def verify_chunk(chunks_dir: str | os.PathLike, chunk_id: str) -> str | None:
+    """What is wrong with a finished chunk, or None when it is whole: its
+    ``chunk.json`` must parse and every table file it lists must have the SHA-256
+    it records (a chunk written before checksums were recorded must at least have
+    readable parquet files)."""
+    d = Path(chunks_dir) / chunk_id
+    try:
+        meta = read_chunk_meta(chunks_dir, chunk_id)
+    except (OSError, ValueError):
+        return f"{CHUNK_META} is unreadable"
+    files = meta.get("files")
+    if not isinstance(files, dict):
+        for f in sorted(d.glob("*.parquet")):
+            try:
+                pq.read_metadata(f)
+            except Exception:  # noqa: BLE001 - any failure to read is damage
+                return f"{f.name} is unreadable"
+        return None if (d / "runs.parquet").is_file() else "runs.parquet is missing"
+    for name, digest in sorted(files.items()):
+        f = d / name
+        if not f.is_file():
+            return f"{name} is missing"
+        if sha256_file(f) != digest:
+            return f"{name} does not match its SHA-256 in {CHUNK_META}"
+    return None
 
 
 def read_chunk_meta(chunks_dir: str | os.PathLike, chunk_id: str) -> dict[str, Any]:

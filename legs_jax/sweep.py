@@ -1137,6 +1137,8 @@ def _reuse_chunk(plan: ExperimentPlan, chunk: Chunk, donors: _Donors):
     arm = plan.arms[chunk.arm]
     parts: dict[str, list[pd.DataFrame]] = {}
     curve_steps = None
+    if any(res.verify_chunk(d.parent, d.name) is not None for d in sources):
+        return None  # a damaged donor: compute instead
     try:
         for d in sources:
             with open(d / res.CHUNK_META) as fh:
@@ -1262,7 +1264,7 @@ def _prepare_dir(plan: ExperimentPlan, out: Path, overwrite: bool, leader: bool)
     # Finished chunks of this plan must match it.
     chunks_dir = d / "chunks"
     for c in plan.chunks:
-        if res.chunk_done(chunks_dir, c.id):
+        if _chunk_ok(chunks_dir, c.id):  # a damaged chunk is recomputed later
             meta = res.read_chunk_meta(chunks_dir, c.id)
             if meta.get("hash") != c.hash:
                 raise SweepError(
@@ -1298,6 +1300,50 @@ def _merged_without_chunks(plan: ExperimentPlan, out: Path) -> bool:
     )
 
 
+def _chunk_ok(chunks_dir: Path, chunk_id: str) -> bool:
+    """The chunk is finished and whole (:func:`legs_jax.results.verify_chunk`)."""
+    return res.chunk_done(chunks_dir, chunk_id) and (
+        res.verify_chunk(chunks_dir, chunk_id) is None
+    )
+
+
+def _drop_damaged(plan: ExperimentPlan, chunks: Sequence[Chunk], d: Path) -> int:
+    """Delete the finished chunks among ``chunks`` whose files do not match their
+    recorded SHA-256 (a partial copy, a disk error), with a warning that names
+    each, so that they are computed again; returns how many."""
+    n = 0
+    for c in chunks:
+        if not res.chunk_done(d / "chunks", c.id):
+            continue
+        why = res.verify_chunk(d / "chunks", c.id)
+        if why is None:
+            continue
+        _say(f"warning: {plan.name}: chunk {c.id} is damaged ({why}); recomputing it")
+        shutil.rmtree(d / "chunks" / c.id, ignore_errors=True)
+        n += 1
+    return n
+
+
+def _complete_and_current(plan: ExperimentPlan, out: Path) -> bool:
+    """The experiment is complete: manifest of this configuration with status
+    complete, its merged tables present and every chunk whole. A run then leaves
+    every file as it is."""
+    import json
+
+    d = _exp_dir(out, plan.name)
+    try:
+        with open(d / "manifest.json") as fh:
+            old = json.load(fh)
+    except (OSError, json.JSONDecodeError):
+        return False
+    return (
+        old.get("status") == "complete"
+        and old.get("config_hash") == res.config_hash(plan.config())
+        and (d / "runs.parquet").is_file()
+        and all(_chunk_ok(d / "chunks", c.id) for c in plan.chunks)
+    )
+
+
 def _config_diff(old: Mapping[str, Any], new: Mapping[str, Any]) -> str:
     keys = sorted(set(old) | set(new))
     diff = [k for k in keys if res._canonical(old.get(k)) != res._canonical(new.get(k))]
@@ -1325,7 +1371,7 @@ def _write_manifest(
     chunks_dir = d / "chunks"
     chunks = {}
     for c in plan.chunks:
-        if res.chunk_done(chunks_dir, c.id):
+        if _chunk_ok(chunks_dir, c.id):
             m = res.read_chunk_meta(chunks_dir, c.id)
             chunks[c.id] = {
                 k: m.get(k)
@@ -1514,6 +1560,7 @@ def run_experiment(
         for i, c in enumerate(plan.chunks)
         if i % dist.num_processes == dist.process_id
     ]
+    _drop_damaged(plan, mine, d)
     todo = [c for c in mine if not res.chunk_done(chunks_dir, c.id)]
     # Work order: objects outer, arms inner, so loaded problems are reused.
     todo.sort(key=lambda c: (c.objects[0], c.trials[0], c.arm))
@@ -1627,6 +1674,7 @@ def finish_experiment(
     the manifest; returns "complete" or "incomplete" (chunks missing)."""
     d = _exp_dir(out, plan.name)
     chunks_dir = d / "chunks"
+    _drop_damaged(plan, plan.chunks, d)
     missing = [c.id for c in plan.chunks if not res.chunk_done(chunks_dir, c.id)]
     if missing:
         _write_manifest(plan, d, "incomplete", session)
@@ -1661,15 +1709,35 @@ def _check_user_methods(plans: Sequence[ExperimentPlan], quiet: bool) -> None:
 
 
 def _print_plan(plan: ExperimentPlan, out: Path) -> None:
+    """What the run would do: nothing for a complete experiment (as the run
+    decides it), a refusal for another configuration, else the chunks to run."""
+    import json
+
     d = _exp_dir(out, plan.name)
-    done = sum(1 for c in plan.chunks if res.chunk_done(d / "chunks", c.id))
+    try:
+        with open(d / "manifest.json") as fh:
+            old = json.load(fh)
+    except (OSError, json.JSONDecodeError):
+        old = None
+    if old is not None and old.get("config_hash") != res.config_hash(plan.config()):
+        print(
+            f"{plan.name}: {d} holds results of another configuration; the run "
+            "would refuse them (--overwrite replaces them, --out writes elsewhere)"
+        )
+        return
+    if old is not None and (
+        _merged_without_chunks(plan, out) or _complete_and_current(plan, out)
+    ):
+        print(f"{plan.name}: complete in {d}; the run would compute nothing")
+        return
+    todo = [c for c in plan.chunks if not _chunk_ok(d / "chunks", c.id)]
     print(
         f"{plan.name}: {len(plan.objects)} object(s), {len(plan.arms)} arm(s), "
         f"T={plan.trials} R={plan.rollouts} H={plan.horizon}, "
-        f"{len(plan.chunks)} chunk(s) ({done} done), "
-        f"{plan.total_rollouts} rollouts -> {d}"
+        f"{len(plan.chunks)} chunk(s) ({len(plan.chunks) - len(todo)} done), "
+        f"{sum(c.rollouts for c in todo)} rollouts to run -> {d}"
     )
-    for c in plan.chunks:
+    for c in todo:
         print(f"  {c.id}: {c.rollouts} rollouts, P={c.num_poses} K={c.num_grasps}")
 
 
@@ -1735,6 +1803,19 @@ def main(argv: Sequence[str] | None = None) -> int:
                 a.quiet,
             )
             statuses[name] = "already complete"
+        complete = [
+            p.name
+            for p in plans
+            if p.name not in kept and _complete_and_current(p, out)
+        ]
+        for name in complete:
+            _say(
+                f"{name}: complete in {_exp_dir(out, name)}; nothing to run, every "
+                "file left as it is (--overwrite recomputes it)",
+                a.quiet,
+            )
+            statuses[name] = "already complete"
+        kept += complete
         plans = [p for p in plans if p.name not in kept]
         for plan in plans:
             sessions[plan.name] = run_experiment(

@@ -413,6 +413,60 @@ def test_merged_results_without_chunks_are_kept(tmp_path, probs, fake_engine, ca
     assert code == 2 and "different configuration" in err
 
 
+def _files(folder: Path) -> dict[str, tuple[bytes, int]]:
+    return {
+        p.relative_to(folder).as_posix(): (p.read_bytes(), p.stat().st_mtime_ns)
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
+
+
+def test_complete_experiment_is_left_untouched(tmp_path, probs, fake_engine, capsys):
+    out = tmp_path / "out"
+    args = ["--experiment", "confidence", "--problems", *probs, "--out", str(out)]
+    args += ["--trials", "1", "--rollouts", "2", "--horizon", "100"]
+    assert _cli(args, capsys)[0] == 0
+    before, calls = _files(out), len(fake_engine)
+    code = sweep.main([*args, "--compile-cache", "off"])  # not quiet: the message
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "confidence: complete in" in err and "every file left as it is" in err
+    assert len(fake_engine) == calls and _files(out) == before
+
+
+@pytest.mark.parametrize("damage", ["truncate", "flip", "delete", "meta"])
+def test_damaged_chunk_is_recomputed(tmp_path, probs, fake_engine, capsys, damage):
+    """A finished chunk whose file was cut short, altered or lost (or whose
+    chunk.json is garbage) is found by its SHA-256, named in a warning and
+    computed again; the merged tables equal an undamaged run's."""
+    base = ["--experiment", "main", "--problems", *probs, "--trials", "2"]
+    base += ["--rollouts", "2", "--horizon", "100", "--methods", "legs,tql"]
+    assert _cli([*base, "--out", str(tmp_path / "ref")], capsys)[0] == 0
+    out = tmp_path / "out"
+    assert _cli([*base, "--out", str(out)], capsys)[0] == 0
+    chunk = sorted((out / "main" / "chunks").iterdir())[0]
+    f = chunk / "runs.parquet"
+    if damage == "truncate":
+        f.write_bytes(f.read_bytes()[: f.stat().st_size // 2])
+    elif damage == "flip":
+        data = bytearray(f.read_bytes())
+        data[len(data) // 2] ^= 0xFF
+        f.write_bytes(bytes(data))
+    elif damage == "delete":
+        f.unlink()
+    else:
+        (chunk / results.CHUNK_META).write_text("{not json")
+    calls = len(fake_engine)
+    code = sweep.main([*base, "--out", str(out), "--compile-cache", "off"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert f"chunk {chunk.name} is damaged" in err and "recomputing it" in err
+    assert "Traceback" not in err
+    assert len(fake_engine) == calls + 1  # that chunk alone
+    assert _read_all(out) == _read_all(tmp_path / "ref")
+    assert results.verify_chunk(chunk.parent, chunk.name) is None
+
+
 def test_cli_resume_after_interrupt_equals_uninterrupted(
     tmp_path, probs, fake_engine, capsys, monkeypatch
 ):
@@ -525,8 +579,19 @@ def test_dry_run_prints_plan(tmp_path, probs, fake_engine, capsys):
     args = ["--experiment", "prior_strength", "--problems", probs[0], "--dry-run"]
     code = sweep.main([*args, "--out", str(tmp_path), "--trials", "3"])
     out = capsys.readouterr().out
-    assert code == 0 and "prior_strength: 1 object(s)" in out and "180 rollouts" in out
+    assert code == 0 and "prior_strength: 1 object(s)" in out
+    assert "180 rollouts to run" in out
     assert not fake_engine and not (tmp_path / "prior_strength").exists()
+    # the dry run says what the run will do: nothing once complete, with or
+    # without the chunk folders (a fresh clone of committed results)
+    assert sweep.main([*args[:-1], "--out", str(tmp_path), "--trials", "3"]) == 0
+    for _ in range(2):
+        code = sweep.main([*args, "--out", str(tmp_path), "--trials", "3"])
+        out = capsys.readouterr().out
+        assert code == 0 and "complete in" in out and "compute nothing" in out
+        shutil.rmtree(tmp_path / "prior_strength" / "chunks", ignore_errors=True)
+    code = sweep.main([*args, "--out", str(tmp_path), "--trials", "2"])
+    assert code == 0 and "another configuration" in capsys.readouterr().out
 
 
 def test_dry_run_does_not_build_missing_problems(tmp_path, monkeypatch, capsys):
