@@ -22,8 +22,8 @@ import pytest
 from scipy import stats
 from test_methods import CFG_KN, ODD, RUN, conformance_problem, own, shared_run
 
+from legs_jax import methods, sampling
 from legs_jax import reference as ref
-from legs_jax import sampling
 
 ALPHA = 1e-3  # level of every two-sample test
 R_REF = 100  # reference rollouts per trial (2 trials: 200)
@@ -82,7 +82,10 @@ def _welch(a, b, what):
     assert p > ALPHA, f"{what}: means {a.mean():.4g} vs {b.mean():.4g}, p = {p:.2g}"
 
 
-LEARNERS = ("borges_100", "borges_2000", "legs_no_as", "legs", "tql")
+# Every registered method that learns and has a NumPy twin.
+LEARNERS = tuple(
+    n for n in methods.names() if methods.get(n).learns and methods.get(n).reference
+)
 
 
 @pytest.mark.parametrize("name", LEARNERS)

@@ -13,7 +13,10 @@ from legs_jax.errors import ConfigError
 from legs_jax.problem import Problem
 from legs_jax.synthetic import make_problem
 
-LEARNERS = ("borges_100", "borges_2000", "legs_no_as", "legs", "tql")
+# Every registered method that learns and has a NumPy twin.
+LEARNERS = tuple(
+    n for n in methods.names() if methods.get(n).learns and methods.get(n).reference
+)
 
 
 def hand_problem(landing, topple, p, q, valid=None, pose_valid=None) -> Problem:

@@ -1,9 +1,10 @@
 """The registry of exploration methods (SPEC §4): the one list of them.
 
-Each method lives in its own module that defines ``METHOD``, a
+Each method lives in its own module of this folder that defines ``METHOD``, a
 :class:`legs_jax.methods.base.Method` declaring its functions, hyperparameters,
-labels and costs. Everything else (the engine, the NumPy reference, the sweep, the
-benchmark, the analysis and the figures) asks this registry. A method from outside
+labels and costs; a new module is found without being listed. Everything else
+(the engine, the NumPy reference, the sweep, the benchmark, the analysis and the
+figures) asks this registry. A method from outside
 the package is named ``my_pkg.my_module:METHOD`` (:func:`resolve`) and passes the
 same conformance checks as ours (:mod:`legs_jax.methods.conformance`).
 """
@@ -13,6 +14,7 @@ from __future__ import annotations
 import importlib
 import math
 import numbers
+import pkgutil
 from collections.abc import Mapping
 from typing import Any
 
@@ -32,8 +34,9 @@ __all__ = [
     "resolve",
 ]
 
-# The methods of this package, in the order of SPEC §4's table.
-_MODULES = (
+# The paper's methods, in the order of SPEC §4's table; every other module of this
+# folder that defines ``METHOD`` follows, by name (a new method is one new file).
+_PAPER = (
     "dexnet",
     "k100_ub",
     "borges_100",
@@ -42,7 +45,20 @@ _MODULES = (
     "legs",
     "tql",
 )
+_NOT_METHODS = ("base", "conformance")
 _REGISTRY: dict[str, Method] = {}
+
+
+def _modules() -> tuple[str, ...]:
+    found = sorted(
+        m.name
+        for m in pkgutil.iter_modules(__path__)
+        if not m.name.startswith("_") and m.name not in _NOT_METHODS
+    )
+    return _PAPER + tuple(m for m in found if m not in _PAPER)
+
+
+_MODULES = _modules()
 
 
 def register(method: Method) -> Method:
