@@ -14,6 +14,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+import sweeps
 from legs_jax import analysis as an
 from legs_jax._files import public_mode
 
@@ -232,8 +233,9 @@ def table_one_table(t1: pd.DataFrame, horizon: int | None = None) -> Table:
     # Bold the lowest mean of the compared methods (not the oracle row), as the
     # paper does; ties within 0.005 are all bold.
     best = {}
+    oracle = an.oracle_methods()
     for s in sets:
-        d = t1[(t1["set"] == s) & (t1["method"] != "k100_ub")]
+        d = t1[(t1["set"] == s) & ~t1["method"].isin(oracle)]
         best[s] = float(d["mean"].min()) if len(d) else math.nan
     rows = []
     for m, v in arms:
@@ -242,7 +244,7 @@ def table_one_table(t1: pd.DataFrame, horizon: int | None = None) -> Table:
             d = t1[(t1["set"] == s) & (t1["method"] == m) & (t1["variant"] == v)]
             if len(d):
                 mean, se = float(d["mean"].iloc[0]), float(d["se"].iloc[0])
-                bold = m != "k100_ub" and mean <= best[s] + 0.005
+                bold = m not in oracle and mean <= best[s] + 0.005
                 row.append(Num(mean, se, 3, bold))
             else:
                 row.append("—")
@@ -250,8 +252,8 @@ def table_one_table(t1: pd.DataFrame, horizon: int | None = None) -> Table:
                 paper = an.PAPER_TABLE1[s]
                 if v == "" and m in paper:
                     pm, pse = paper[m]
-                    low = min(x[0] for k, x in paper.items() if k != "k100_ub")
-                    row.append(Num(pm, pse, 2, m != "k100_ub" and pm <= low))
+                    low = min(x[0] for k, x in paper.items() if k not in oracle)
+                    row.append(Num(pm, pse, 2, m not in oracle and pm <= low))
                 else:
                     row.append("—")
         rows.append(row)
@@ -322,16 +324,10 @@ def per_object_table(gaps: pd.DataFrame, win: pd.DataFrame) -> Table:
     """Final gap of every arm on every object (mean ± SE over its runs)."""
     arms = an.arms_of(gaps)
     short = {
-        ("dexnet", ""): "Dex-Net*",
-        ("tql", ""): "TQL",
-        ("borges_100", ""): "BORGES-100",
-        ("k100_ub", ""): "K100-UB",
-        ("borges_2000", ""): "BORGES-2000",
-        ("borges_2000", "orig_prior"): "BORGES-2000 (s=5, offset 0)",
-        ("legs_no_as", ""): "LEGS(-AS)",
-        ("legs", ""): "LEGS",
+        a: an.arm_declaration(*a).get("short_label") or an.arm_label(*a)
+        for a in {*arms, *((m, "") for m in an.COMPETITORS)}
     }
-    header = ["Set", "Object", *[short.get(a, an.arm_label(*a)) for a in arms]]
+    header = ["Set", "Object", *[short[a] for a in arms]]
     header.append("Winners")
     rows = []
     keyed = gaps.set_index(["object", "method", "variant"])
@@ -595,7 +591,7 @@ def paper_value(mapping: Mapping, *keys):
 
 
 # ==================================================================== report
-_EXPERIMENTS = ("main", "case_study", "early_stopping", "prior_strength", "confidence")
+_EXPERIMENTS = sweeps.EXPERIMENTS
 
 
 def _f(x: float | None, d: int = 3) -> str:
@@ -714,14 +710,14 @@ def _table_one_sentences(main: Mapping) -> list[str]:
                     "error)"
                 )
             parts.append(text)
-        w = wins[(wins["set"] == s) & (wins["method"] == "legs")]
+        w = wins[(wins["set"] == s) & (wins["method"] == an.PROPOSED)]
         win_text = ""
         if len(w):
             win_text = (
                 f" LEGS wins {int(w['wins'].iloc[0])} of {int(w['n_objects'].iloc[0])}"
                 " objects"
             )
-            pw = an.PAPER_WINS.get(s, {}).get("legs")
+            pw = an.PAPER_WINS.get(s, {}).get(an.PROPOSED)
             if pw:
                 win_text += (
                     f" ({100 * w['wins'].iloc[0] / max(1, w['n_objects'].iloc[0]):.0f}"
@@ -769,8 +765,8 @@ def _case_study_lines(info: Mapping, main: Mapping | None) -> list[str]:
         best_final = best_area = "—"
         if cs is not None and len(cs):
             comp = cs[cs["method"].isin(an.COMPETITORS) & (cs["variant"] == "")]
-            legs = comp[comp["method"] == "legs"]
-            rest = comp[comp["method"] != "legs"]
+            legs = comp[comp["method"] == an.PROPOSED]
+            rest = comp[comp["method"] != an.PROPOSED]
             if len(legs):
                 legs_final = float(legs["final"].iloc[0])
                 legs_area = float(legs["area"].iloc[0])

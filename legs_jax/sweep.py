@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+import sweeps
 from legs_jax import results as res
 
 __all__ = [
@@ -527,7 +528,7 @@ def _smoke_problems(names: Sequence[str], catalog, folder: Path) -> list[ObjectE
 
 
 # ====================================================================== arguments
-EXPERIMENTS = ("main", "case_study", "early_stopping", "prior_strength", "confidence")
+EXPERIMENTS = sweeps.EXPERIMENTS
 
 
 def _positive_int(text: str) -> int:
