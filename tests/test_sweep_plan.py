@@ -38,7 +38,7 @@ def fake_engine(monkeypatch):
     eng = types.SimpleNamespace(
         run=functools.partial(sweep_fakes.fake_run, calls=calls)
     )
-    monkeypatch.setattr(sweep, "_engine", lambda: eng)
+    monkeypatch.setattr(sweep.execute, "_engine", lambda: eng)
     return calls
 
 
@@ -106,7 +106,8 @@ def test_experiment_modules_declare_valid_arms(name):
 
 def test_paper_grids_and_extra_row():
     main = [sweep.make_arm(*a) for a in sweeps.get("main").ARMS]
-    assert {a.method for a in main} == set(methods.names())
+    paper = set(sweeps.get("main").TABLE_ORDER)
+    assert {a.method for a in main} == paper and paper <= set(methods.names())
     orig = [a for a in main if a.variant == "orig_prior"]
     assert len(orig) == 1 and orig[0].method == "borges_2000"
     assert dict(orig[0].grid[0])["prior_offset"] == 0.0
@@ -187,7 +188,7 @@ def test_plan_covers_every_run_once_and_is_deterministic():
     for c in chunks:
         for o in c.objects:
             # An object shares a chunk only with objects of its padded shape.
-            assert c.num_poses == sweep._pose_bucket(objects[o].num_poses)
+            assert c.num_poses == sweep.plan._pose_bucket(objects[o].num_poses)
             for t in c.trials:
                 key = (c.arm, o, t)
                 assert key not in seen
@@ -204,7 +205,7 @@ def test_plan_covers_every_run_once_and_is_deterministic():
 def test_plan_splits_trials_when_one_object_is_too_big():
     plan = _plan([_obj("a", 4, 2000)], [("borges_2000", "", {})], trials=10)
     arm = sweep.make_arm("borges_2000", "", {})
-    per_trial = 2 * sweep._rollout_work(arm, 4, 2000, 300, 0)
+    per_trial = 2 * sweep.plan._rollout_work(arm, 4, 2000, 300, 0)
     chunks = sweep.plan_chunks(plan, work_budget=3.5 * per_trial)
     sizes = [len(c.trials) for c in chunks]
     assert len(chunks) > 1 and sum(sizes) == 10 and max(sizes) - min(sizes) <= 1
@@ -475,7 +476,7 @@ def test_cli_resume_after_interrupt_equals_uninterrupted(
     code, err = _cli([*base, "--out", str(tmp_path / "ref")], capsys)
     assert code == 0, err
 
-    real = sweep._run_chunk
+    real = sweep.execute._run_chunk
     n = {"chunks": 0}
 
     def interrupt_third(*a, **k):
@@ -484,14 +485,14 @@ def test_cli_resume_after_interrupt_equals_uninterrupted(
             raise KeyboardInterrupt
         return real(*a, **k)
 
-    monkeypatch.setattr(sweep, "_run_chunk", interrupt_third)
+    monkeypatch.setattr(sweep.execute, "_run_chunk", interrupt_third)
     code, err = _cli([*base, "--out", str(tmp_path / "res")], capsys)
     assert code == 130
     assert "kept 2 of" in err and "resume" in err
     man = json.loads((tmp_path / "res/main/manifest.json").read_text())
     assert man["status"] == "interrupted" and man["chunks_done"] == 2
     assert not (tmp_path / "res/main/runs.parquet").exists()
-    monkeypatch.setattr(sweep, "_run_chunk", real)
+    monkeypatch.setattr(sweep.execute, "_run_chunk", real)
     fake_engine.clear()
     code, err = _cli([*base, "--out", str(tmp_path / "res")], capsys)
     assert code == 0, err
@@ -598,7 +599,9 @@ def test_dry_run_does_not_build_missing_problems(tmp_path, monkeypatch, capsys):
     import precompute
 
     built = []
-    monkeypatch.setattr(sweep, "_missing_problems", lambda names: list(names))
+    monkeypatch.setattr(
+        sweep.experiments, "_missing_problems", lambda names: list(names)
+    )
     monkeypatch.setattr(precompute, "ensure", lambda *a, **k: built.append(a))
     args = ["--experiment", "prior_strength", "--dry-run", "--out", str(tmp_path)]
     code = sweep.main(args)
@@ -610,18 +613,20 @@ def test_dry_run_does_not_build_missing_problems(tmp_path, monkeypatch, capsys):
 
 def test_catalog_names_resolve_in_catalogue_order():
     catalog = pytest.importorskip("precompute.catalog")
-    got = sweep._resolve_names(["C3", "dexnet_adv", "bar_clamp"], catalog)
+    got = sweep.experiments._resolve_names(["C3", "dexnet_adv", "bar_clamp"], catalog)
     names = [n for n, _, _ in got]
     assert names[:13] == [i.name for i in catalog.objects("dexnet_adv")]
     assert names[13:] == ["C3"] and len(set(names)) == 14
     assert [oid for _, _, oid in got] == sorted(oid for _, _, oid in got)
     assert {s for _, s, _ in got} == {"dexnet_adv", "egad_eval"}
     with pytest.raises(sweep.SweepError, match="did you mean bar_clamp"):
-        sweep._resolve_names(["bar_clam"], catalog)
+        sweep.experiments._resolve_names(["bar_clam"], catalog)
     # Every object named by an experiment exists.
     for name in sweeps.EXPERIMENTS:
         mod = sweeps.get(name)
-        sweep._resolve_names(list(mod.OBJECTS) + list(mod.SMOKE_OBJECTS), catalog)
+        sweep.experiments._resolve_names(
+            list(mod.OBJECTS) + list(mod.SMOKE_OBJECTS), catalog
+        )
 
 
 def test_result_files_are_readable_by_others(tmp_path):
@@ -648,7 +653,7 @@ def test_identical_rollouts_are_copied_from_another_experiment(
     clean commit they are copied, not computed, and the tables are byte-identical
     to computing them; chunks that record active sets (case_study's LEGS) still
     run; a dirty tree, another commit or --no-reuse computes everything."""
-    monkeypatch.setattr(sweep, "_git_commit", lambda: dict(_CLEAN))
+    monkeypatch.setattr(sweep.store, "_git_commit", lambda: dict(_CLEAN))
     base = ["--problems", *probs, "--trials", "2", "--rollouts", "2"]
     base += ["--horizon", "200", "--methods", "legs", "tql"]
     exps = ["--experiment", "main", "case_study", "early_stopping"]
@@ -682,7 +687,7 @@ def test_identical_rollouts_are_copied_from_another_experiment(
 
     # Donors must come from the same clean commit as the running code.
     for git in ({**_CLEAN, "dirty": True}, {**_CLEAN, "commit": "beef" * 10}):
-        monkeypatch.setattr(sweep, "_git_commit", lambda git=git: dict(git))
+        monkeypatch.setattr(sweep.store, "_git_commit", lambda git=git: dict(git))
         fake_engine.clear()
         code, err = _cli(
             [*base, "--experiment", "early_stopping", "--out", str(out), "--overwrite"],
@@ -696,7 +701,7 @@ def test_identical_rollouts_are_copied_from_another_experiment(
 def test_reuse_needs_the_same_problem_file_and_configuration(
     tmp_path, fake_engine, capsys, monkeypatch
 ):
-    monkeypatch.setattr(sweep, "_git_commit", lambda: dict(_CLEAN))
+    monkeypatch.setattr(sweep.store, "_git_commit", lambda: dict(_CLEAN))
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
     a = _problems(tmp_path / "a", [("alpha", 3, 200)])
