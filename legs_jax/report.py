@@ -16,7 +16,7 @@ import pandas as pd
 
 import sweeps
 from legs_jax import analysis as an
-from legs_jax._files import public_mode
+from legs_jax._files import atomic_write
 
 __all__ = [
     "Num",
@@ -557,22 +557,7 @@ def write_pair(stem, table: Table, folder) -> list:
 
 
 def _write_text(path, text: str) -> None:
-    import os
-    import tempfile
-    from pathlib import Path
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
-            fh.write(text)
-        public_mode(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    atomic_write(path, lambda fh: fh.write(text), text=True)
 
 
 def write_text(path, text: str) -> None:

@@ -47,7 +47,6 @@ import json
 import os
 import shutil
 import socket
-import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -57,7 +56,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from legs_jax._files import public_mode
+from legs_jax._files import atomic_write
 
 __all__ = [
     "CHUNK_META",
@@ -115,37 +114,16 @@ def sha256_file(path: str | os.PathLike) -> str:
 # -------------------------------------------------------------------- atomic I/O
 def atomic_write_parquet(df: pd.DataFrame, path: str | os.PathLike) -> Path:
     """Write ``df`` (without its index) to ``path`` through a temporary file."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     table = pa.Table.from_pandas(df, preserve_index=False)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        pq.write_table(table, tmp)
-        public_mode(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    return atomic_write(path, lambda fh: pq.write_table(table, fh))
 
 
 def atomic_write_json(obj: Any, path: str | os.PathLike) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(_canonical(obj), fh, indent=1, sort_keys=True)
-            fh.write("\n")
-        public_mode(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    def write(fh) -> None:
+        json.dump(_canonical(obj), fh, indent=1, sort_keys=True)
+        fh.write("\n")
+
+    return atomic_write(path, write, text=True)
 
 
 # -------------------------------------------------------------------- chunk tables

@@ -25,16 +25,8 @@ ARMS = (
     ("tql", "", {}),
 )
 
-TRIALS = 10
-ROLLOUTS = 10
-HORIZON = 3000
-RECORD_EVERY = 10
-CHECK_EVERY = 100
-
-# Methods whose Dirichlet checks go to checks.parquet.
+# Dirichlet checks of LEGS only (sweeps.DEFAULTS holds the rest).
 CHECK_METHODS = ("legs",)
-# Methods whose active sets go to active_set.parquet (trial 0, rollout 0).
-ACTIVE_SET_METHODS = ()
 
 # Objects used by --smoke (synthetic problems carrying these names).
 SMOKE_OBJECTS = ("bar_clamp", "A0")

@@ -124,3 +124,15 @@ def prune(st: DenseState, ctx: Ctx, cfg: Config, s, live):
     gone = gone & live[:, None]
     removed = st.removed.at[bi, s].set(st.removed[bi, s] | gone)
     return st._replace(removed=removed), jnp.sum(gone, axis=-1, dtype=jnp.int32)
+
+
+# The functions a method built on this state shares (besides ``init``).
+FUNCTIONS = dict(
+    select=select,
+    update=update,
+    recommend=recommend,
+    recommend_updated=recommend_updated,
+    recommend_init=recommend_init,
+    estimates=estimates,
+    candidates=candidates,
+)

@@ -105,3 +105,13 @@ def candidates_top(st: FixedState, ctx: Ctx, cfg: Config):
     nv = t.n_valid[ctx.ot]
     rank = jnp.argsort(t.order[ctx.ot], axis=-1)  # rank of each grasp in the q order
     return (rank < cfg.top) & (rank < nv[..., None])
+
+
+# The functions a method built on this state shares (besides ``init``).
+FUNCTIONS = dict(
+    select=select,
+    update=update,
+    recommend=recommend,
+    recommend_init=recommend_init,
+    estimates=estimates,
+)

@@ -146,3 +146,15 @@ def prune_refill(st: SlotState, ctx: Ctx, cfg: Config, s, live):
         next=st.next.at[bi, s].set(jnp.minimum(nxt + n_gone, nv)),
     )
     return st, n_gone
+
+
+# The functions a method built on this state shares (besides ``init``).
+FUNCTIONS = dict(
+    select=select,
+    update=update,
+    recommend=recommend,
+    recommend_updated=recommend_updated,
+    recommend_init=recommend_init,
+    estimates=estimates,
+    candidates=candidates,
+)

@@ -12,12 +12,8 @@ from legs_jax.methods.base import Method
 METHOD = Method(
     name="dexnet",
     description="Dex-Net: argmax prior, no exploration (constant gap)",
+    **_fixed.FUNCTIONS,
     init=lambda ctx, cfg: _fixed.init(ctx, cfg, which="dexnet"),
-    select=_fixed.select,
-    update=_fixed.update,
-    recommend=_fixed.recommend,
-    recommend_init=_fixed.recommend_init,
-    estimates=_fixed.estimates,
     candidates=_fixed.candidates_dexnet,
     learns=False,
     label="Dex-Net (synthetic prior)",

@@ -10,12 +10,8 @@ from legs_jax.methods.base import TOP_FIXED, Method
 METHOD = Method(
     name="k100_ub",
     description="K100 upper bound: best true grasp of the top-100 by prior (oracle)",
+    **_fixed.FUNCTIONS,
     init=lambda ctx, cfg: _fixed.init(ctx, cfg, which="k100_ub"),
-    select=_fixed.select,
-    update=_fixed.update,
-    recommend=_fixed.recommend,
-    recommend_init=_fixed.recommend_init,
-    estimates=_fixed.estimates,
     candidates=_fixed.candidates_top,
     learns=False,
     label="K_s=100 upper bound",
