@@ -513,24 +513,23 @@ class Borges(BetaMethod):
 class LegsNoAS(BetaMethod):
     """LEGS(-AS): Thompson sampling over all K minus the removed grasps."""
 
+    def _prune_set(self, s: int) -> np.ndarray:
+        """[K] bool, the LEGS removal set of pose s (:func:`legs_prune`)."""
+        hp = self.hp
+        args = (self.alpha[s], self.beta[s], self.attempted[s], self.cand[s])
+        return legs_prune(*args, hp["delta"], hp["gamma"])
+
     def after_step(self, t: int, s: int) -> None:
         if t % self.hp["n"] != 0:
             return
-        removed = legs_prune(
-            self.alpha[s],
-            self.beta[s],
-            self.attempted[s],
-            self.cand[s],
-            self.hp["delta"],
-            self.hp["gamma"],
-        )
+        removed = self._prune_set(s)
         self.cand[s] &= ~removed
         self.replacements += int(removed.sum())
         self.removal_log += [(t, s, int(g)) for g in np.flatnonzero(removed)]
         self._dirty[s] = True
 
 
-class Legs(BetaMethod):
+class Legs(LegsNoAS):
     """LEGS: Thompson sampling over an active set of k slots, pruned and refilled."""
 
     def __init__(self, problem, trial, hp):
@@ -550,14 +549,7 @@ class Legs(BetaMethod):
     def after_step(self, t: int, s: int) -> None:
         if t % self.hp["n"] != 0:
             return
-        removed = legs_prune(
-            self.alpha[s],
-            self.beta[s],
-            self.attempted[s],
-            self.cand[s],
-            self.hp["delta"],
-            self.hp["gamma"],
-        )
+        removed = self._prune_set(s)
         for j in range(self.slots.shape[1]):  # slot order
             g = self.slots[s, j]
             if g < 0 or not removed[g]:

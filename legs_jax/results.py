@@ -468,12 +468,9 @@ def _pid_alive(pid: int) -> bool:
 
 
 # -------------------------------------------------------------------------- merge
+_ARM_COLUMNS = ["experiment", "set", "object", "method", "variant"]
 _RUN_COLUMNS = [
-    "experiment",
-    "set",
-    "object",
-    "method",
-    "variant",
+    *_ARM_COLUMNS,
     "trial",
     "rollout",
     "seed",
@@ -485,13 +482,9 @@ _RUN_COLUMNS = [
     "distinct_grasps",
     "replacements",
 ]
-_GROUP_COLUMNS = ["experiment", "set", "object", "method", "variant", *HPARAM_COLUMNS]
+_GROUP_COLUMNS = [*_ARM_COLUMNS, *HPARAM_COLUMNS]
 _CHECK_COLUMNS = [
-    "experiment",
-    "set",
-    "object",
-    "method",
-    "variant",
+    *_ARM_COLUMNS,
     "trial",
     "rollout",
     *HPARAM_COLUMNS,
@@ -587,7 +580,7 @@ def _aggregate_curves(runs: pd.DataFrame, steps: np.ndarray) -> pd.DataFrame:
         return pd.DataFrame({c: [] for c in columns})
     # The arm and its grid point fix every hyperparameter (NaN in a column that
     # only a user's method has would never compare equal).
-    keys = runs[["experiment", "set", "object", "method", "variant", "grid_index"]]
+    keys = runs[[*_ARM_COLUMNS, "grid_index"]]
     # Runs are sorted, so each group is one contiguous block.
     change = np.ones(len(runs), bool)
     change[1:] = (keys.iloc[1:].to_numpy() != keys.iloc[:-1].to_numpy()).any(axis=1)

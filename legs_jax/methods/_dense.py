@@ -63,7 +63,9 @@ def select(st: DenseState, ctx: Ctx, cfg: Config, s, key):
     return i, i, (a, b, mask)
 
 
-def update(st: DenseState, ctx: Ctx, cfg: Config, s, grasp, slot, reward, live):
+def update(st, ctx: Ctx, cfg: Config, s, grasp, slot, reward, live):
+    """The Beta update of column ``slot`` of pose s (any state with ``alpha``,
+    ``beta`` and ``attempted`` [B, P, N]: a grasp id here, a slot in _slots)."""
     bi = jnp.arange(s.shape[0])
     was = st.attempted[bi, s, slot]
     win = (live & reward).astype(jnp.float32)
@@ -127,12 +129,5 @@ def prune(st: DenseState, ctx: Ctx, cfg: Config, s, live):
 
 
 # The functions a method built on this state shares (besides ``init``).
-FUNCTIONS = dict(
-    select=select,
-    update=update,
-    recommend=recommend,
-    recommend_updated=recommend_updated,
-    recommend_init=recommend_init,
-    estimates=estimates,
-    candidates=candidates,
-)
+_SHARED = (select, update, recommend, recommend_updated, recommend_init)
+FUNCTIONS = {f.__name__: f for f in (*_SHARED, estimates, candidates)}

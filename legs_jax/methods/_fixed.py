@@ -108,10 +108,5 @@ def candidates_top(st: FixedState, ctx: Ctx, cfg: Config):
 
 
 # The functions a method built on this state shares (besides ``init``).
-FUNCTIONS = dict(
-    select=select,
-    update=update,
-    recommend=recommend,
-    recommend_init=recommend_init,
-    estimates=estimates,
-)
+_SHARED = (select, update, recommend, recommend_init, estimates)
+FUNCTIONS = {f.__name__: f for f in _SHARED}
