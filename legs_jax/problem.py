@@ -25,6 +25,7 @@ import numpy as np
 from legs_jax._files import atomic_write
 
 __all__ = [
+    "peek",
     "FORMAT_VERSION",
     "Problem",
     "ProblemBatch",
@@ -254,6 +255,34 @@ def save(problem: Problem, path: str | os.PathLike) -> Path:
                 z.writestr(info, data, compresslevel=6)
 
     return atomic_write(path, write)
+
+
+def peek(path: str | os.PathLike) -> dict[str, Any]:
+    """The header of a problem file without loading its arrays: ``name``,
+    ``meta`` and ``shapes`` (field -> array shape, for ``landing`` and
+    ``robustness``). Raises an ``OSError``, ``ValueError`` or ``KeyError`` for an
+    unreadable file (:func:`load` says what is wrong with it)."""
+    shapes = {}
+    with zipfile.ZipFile(path) as z:
+        for field in ("landing", "robustness"):
+            with z.open(field + ".npy") as fh:
+                version = np.lib.format.read_magic(fh)
+                if version == (1, 0):
+                    shape, _, _ = np.lib.format.read_array_header_1_0(fh)
+                elif version == (2, 0):
+                    shape, _, _ = np.lib.format.read_array_header_2_0(fh)
+                else:
+                    with z.open(field + ".npy") as full:
+                        shape = np.lib.format.read_array(full).shape
+                shapes[field] = tuple(shape)
+        raw = z.read("meta_json.npy")
+    arr = np.load(io.BytesIO(raw), allow_pickle=False)
+    header = json.loads(str(arr.reshape(-1)[0]))
+    return {
+        "name": header.get("name"),
+        "meta": dict(header.get("meta", {})),
+        "shapes": shapes,
+    }
 
 
 def load(path: str | os.PathLike) -> Problem:

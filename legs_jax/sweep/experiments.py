@@ -13,8 +13,6 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 import sweeps
 from legs_jax import results as res
 from legs_jax.sweep.plan import (
@@ -59,26 +57,6 @@ def _name_object_id(name: str) -> int:
     return int(object_id_from_name(name))
 
 
-def _peek_shapes(path: str | os.PathLike) -> dict[str, tuple[int, ...]]:
-    """Array shapes of a problem file without loading the arrays."""
-    import zipfile
-
-    shapes = {}
-    with zipfile.ZipFile(path) as z:
-        for member in ("landing.npy", "robustness.npy"):
-            with z.open(member) as fh:
-                version = np.lib.format.read_magic(fh)
-                if version == (1, 0):
-                    shape, _, _ = np.lib.format.read_array_header_1_0(fh)
-                elif version == (2, 0):
-                    shape, _, _ = np.lib.format.read_array_header_2_0(fh)
-                else:
-                    with z.open(member) as full:
-                        shape = np.lib.format.read_array(full).shape
-                shapes[member[:-4]] = tuple(shape)
-    return shapes
-
-
 def _resolve_names(requested: Sequence[str], catalog) -> list[tuple[str, str, int]]:
     """(name, set, object_id) of set or object names, in catalogue order."""
     infos = list(catalog.objects())
@@ -117,7 +95,7 @@ def _entry(
     from legs_jax import problem as problem_mod
 
     try:
-        shapes = _peek_shapes(path)
+        shapes = problem_mod.peek(path)["shapes"]
     except Exception:  # noqa: BLE001 - refuse any unreadable file the same way
         problem_mod.load(path)  # raises ProblemFileError naming the field
         raise
