@@ -16,14 +16,10 @@ def _t1(values):
     )
 
 
+_ROWS = ("dexnet", "tql", "borges_100", "k100_ub", "borges_2000", "legs_no_as", "legs")
+_MEANS = (0.50, 0.30, 0.09, 0.05, 0.20, 0.21, 0.10)
 BASE = {
-    "dexnet": (0.50, 0.02),
-    "tql": (0.30, 0.02),
-    "borges_100": (0.09, 0.02),
-    "k100_ub": (0.05, 0.01),
-    "borges_2000": (0.20, 0.02),
-    "legs_no_as": (0.21, 0.02),
-    "legs": (0.10, 0.02),
+    m: (v, 0.01 if m == "k100_ub" else 0.02) for m, v in zip(_ROWS, _MEANS, strict=True)
 }
 
 
