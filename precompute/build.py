@@ -25,10 +25,8 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import io
 import json
 import os
-import zipfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -362,12 +360,10 @@ def problem_path(info, out: Path) -> Path:
 def read_meta(path: Path) -> dict | None:
     """The meta dict of a problem file without loading its arrays (None if
     unreadable)."""
+    from legs_jax import problem as problem_mod  # the one reader of the format
+
     try:
-        with zipfile.ZipFile(path) as z:
-            raw = z.read("meta_json.npy")
-        arr = np.load(io.BytesIO(raw), allow_pickle=False)
-        header = json.loads(str(arr.reshape(-1)[0]))
-        return dict(header.get("meta", {}))
+        return problem_mod.peek(path)["meta"]
     except Exception:  # noqa: BLE001 - any unreadable file is simply out of date
         return None
 
