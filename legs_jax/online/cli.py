@@ -58,6 +58,37 @@ def _session_args(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _cache_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--compile-cache",
+        metavar="DIR",
+        help="JAX persistent compilation cache, so that a restarted session skips "
+        "compiling (default $JAX_COMPILATION_CACHE_DIR, else "
+        "$XDG_CACHE_HOME/legs_jax/jax or ~/.cache/legs_jax/jax; 'off' disables)",
+    )
+
+
+def _compile_cache(option: str | None) -> None:
+    """Turn on JAX's persistent compilation cache (results do not depend on it)."""
+    import os
+
+    if option == "off":
+        return
+    path = option or os.environ.get("JAX_COMPILATION_CACHE_DIR")
+    if not path:
+        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(
+            os.path.expanduser("~"), ".cache"
+        )
+        path = os.path.join(base, "legs_jax", "jax")
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError:
+        return  # a read-only home: run without the cache
+    import jax
+
+    jax.config.update("jax_compilation_cache_dir", path)
+
+
 def _hparams(items) -> dict:
     out = {}
     for item in items:
@@ -103,6 +134,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         help="a .npy 4x4 camera -> table transform (table plane z = 0, z up)",
     )
+    _cache_arg(p)
 
     p = sub.add_parser(
         "simulate",
@@ -138,6 +170,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     _session_args(p)
+    _cache_arg(p)
 
     p = sub.add_parser(
         "recognition-table",
@@ -183,8 +216,10 @@ def main(argv=None) -> int:
         return 2
     try:
         if args.command == "serve":
+            _compile_cache(args.compile_cache)
             return _serve(args)
         if args.command == "simulate":
+            _compile_cache(args.compile_cache)
             return _simulate(args)
         if args.command == "recognition-table":
             from legs_jax.online.recognition_table import main as table_main
