@@ -387,3 +387,12 @@ def test_cli_help_and_clear_errors(tmp_path, capsys):
             == 2
         )
     assert "not a legs_jax online session" in capsys.readouterr().err
+
+
+def test_resume_refuses_a_run_of_another_kind(tmp_path, capsys):
+    """--resume on a session that is not a simulated run, or of another object."""
+    with Session.create(tmp_path / "s", given_poses=given_poses()):
+        pass
+    args = ["simulate", "--object", "bar_clamp", "--out", str(tmp_path / "s")]
+    assert cli.main([*args, "--resume"]) == 2
+    assert "not a simulated run" in capsys.readouterr().err

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from legs_jax.online.errors import InputError
+from legs_jax.online.errors import InputError, StateError
 from legs_jax.online.robot import SimRobot, World
 from legs_jax.online.session import Session
 from legs_jax.online.store import atomic_write
@@ -67,7 +67,20 @@ class Simulation:
         self.given = given_poses
         if resume:
             self.session = Session.open(self.folder)
-            info = json.loads((self.folder / "simulation.json").read_text())
+            try:
+                info = json.loads((self.folder / "simulation.json").read_text())
+            except (OSError, ValueError):
+                self.session.close()
+                raise StateError(
+                    f"{self.folder} holds a session but not a simulated run (no "
+                    "readable simulation.json); it cannot be resumed here"
+                ) from None
+            if info.get("object") != world.name:
+                self.session.close()
+                raise StateError(
+                    f"{self.folder} is a run of {info.get('object')!r}, not "
+                    f"{world.name!r}"
+                )
             self.seed = seed = int(info["seed"])
             self.trial = trial = int(info["trial"])
             self.given = bool(info["given_poses"])
