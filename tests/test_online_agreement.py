@@ -47,6 +47,7 @@ def test_online_loop_agrees_with_the_engine(clamp):
     assert c["online"][0] - c["online"][-1] > c["bound"][-1]
 
 
+@pytest.mark.slow
 def test_a_wrong_world_is_caught(clamp):
     """The same comparison fails when the robot's physics disagrees with the
     problem: the reservoirs' grasps shifted by 3 cm from where the problem put

@@ -31,9 +31,10 @@ def setup():
 
 @pytest.mark.parametrize(
     "method",
-    ["legs", "borges_2000"]
+    ["legs"]
     + [
-        pytest.param(m, marks=pytest.mark.slow) for m in ("tql", "dexnet", "borges_100")
+        pytest.param(m, marks=pytest.mark.slow)
+        for m in ("borges_2000", "tql", "dexnet", "borges_100", "legs_no_as")
     ],
 )
 def test_loop_follows_the_engine_step_for_step(setup, method):

@@ -119,8 +119,8 @@ def _kill_resume(tmp_path, extra, steps, kill_after):
 
 def test_sigkill_mid_run_then_resume_loses_nothing(tmp_path, clamp_problem):
     extra = ("--problem", str(clamp_problem), "--given-poses", "--seed", "2")
-    steps = 300
-    out, after = _kill_resume(tmp_path, extra, steps, kill_after=60)
+    steps = 200
+    out, after = _kill_resume(tmp_path, extra, steps, kill_after=50)
     # the same run never killed: the same log, record for record
     clean = tmp_path / "clean"
     res = subprocess.run(
