@@ -107,7 +107,9 @@ def table_markdown(rows: list[dict], views: int, seed: int) -> str:
         "before counts as right);",
         "- duplicates: new poses created for a true pose already cached, over all "
         "new poses;",
-        "- wrong merges: views assigned to a cached pose of another true pose.",
+        "- wrong merges: views assigned to a cached pose of another true pose;",
+        "- median recognition: wall seconds per view (deprojection to match) on the "
+        "machine that ran the table, with whatever else it was running.",
         "",
         "| object | poses | views | right | new poses | duplicates | wrong merges "
         "| median recognition (s) |",
