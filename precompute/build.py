@@ -4,17 +4,22 @@ Pipeline of one object: load and repair the mesh (:mod:`.mesh`), stable poses an
 landing probabilities, topple matrix (:mod:`.poses`), then per pose: an Embree scene
 of the posed mesh and its height map, T reservoirs of K grasps (:mod:`.grasps`), the
 ground truth p of every grasp from S perturbed executions (all trials of a pose in a
-few large Embree calls), and the synthetic prior q (:mod:`.prior`).
+few large Embree calls), and the prior q: learned (:mod:`.learned`, a network that
+sees the pose's depth image and the grasps, never p) or synthetic (:mod:`.prior`,
+made from p); ``BuildParams.prior`` chooses, defaulting to learned when its weights
+are shipped (``precompute/prior_weights/weights.npz``) and to synthetic until then.
 
 Randomness: every stream is a NumPy ``Generator`` seeded by
 ``SeedSequence([seed, object_key, pose, trial, stream])``, with ``object_key`` a
-hash of the object's name and streams 1 (grasp sampling), 2 (perturbations) and
-3 (prior). Nothing depends on the order of work or the number of processes, and
-the same inputs give byte-identical files.
+hash of the object's name and streams 1 (grasp sampling), 2 (perturbations),
+3 (synthetic prior noise) and 4 (the learned prior's sensor noise). Nothing
+depends on the order of work or the number of processes, and the same inputs give
+byte-identical files.
 
 Up-to-date check: a problem file records ``meta["build_hash"]``, a SHA-256 of the
 mesh file's bytes, its units, every build parameter, the gripper and prior
-constants and ``CODE_VERSION``; a file whose hash matches is not rebuilt.
+constants (for the learned prior: the weights' SHA-256, camera and noise) and
+``CODE_VERSION``; a file whose hash matches is not rebuilt.
 ``CODE_VERSION`` is bumped whenever a change alters the output.
 """
 
@@ -33,6 +38,7 @@ import numpy as np
 
 from . import catalog as _catalog
 from . import grasps as G
+from . import learned as _learned
 from . import poses as _poses
 from . import prior as _prior
 from .errors import PrecomputeError
@@ -56,6 +62,7 @@ CODE_VERSION = "2"
 STREAM_GRASPS = 1
 STREAM_PERTURB = 2
 STREAM_PRIOR = 3
+STREAM_DEPTH = 4
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,8 +74,17 @@ class BuildParams:
     samples: int = G.SAMPLES  # perturbed executions per grasp
     seed: int = 0
     landing_threshold: float = _poses.LANDING_THRESHOLD
+    # "learned" or "synthetic"; the default is learned once weights are shipped
+    prior: str = dataclasses.field(default_factory=_learned.default_prior)
 
     def check(self) -> BuildParams:
+        if self.prior not in _learned.PRIORS:
+            raise PrecomputeError(
+                f"unknown prior '{self.prior}' (choose one of "
+                f"{', '.join(_learned.PRIORS)})"
+            )
+        if self.prior == "learned":
+            _learned.prior_params()  # a clear error when the weights are missing
         if self.trials < 1:
             raise PrecomputeError(f"--trials must be at least 1, got {self.trials}")
         if self.grasps < 1:
@@ -94,21 +110,30 @@ def object_key(name: str) -> int:
 def build_hash(
     mesh_sha256: str, units: str, name: str, params: BuildParams, fit: str = "none"
 ) -> str:
+    hashed = dataclasses.asdict(params)
+    del hashed["prior"]  # in "prior" below (synthetic builds keep their old hash)
     blob = json.dumps(
         {
             "mesh_sha256": mesh_sha256,
             "units": units,
             "fit": fit,
             "name": name,
-            "params": dataclasses.asdict(params),
+            "params": hashed,
             "gripper": G.gripper_params(),
-            "prior": _prior.prior_params(),
+            "prior": prior_params(params),
             "tilt": [_poses.TILT_SIGMA_DEG, _poses.TILT_ANGLES, _poses.TILT_AZIMUTHS],
             "code_version": CODE_VERSION,
         },
         sort_keys=True,
     )
     return hashlib.sha256(blob.encode()).hexdigest()
+
+
+def prior_params(params: BuildParams) -> dict:
+    """The constants of the chosen prior (meta and build hash)."""
+    if params.prior == "learned":
+        return _learned.prior_params()
+    return _prior.prior_params()
 
 
 def _rng(params: BuildParams, name: str, pose: int, trial: int, stream: int):
@@ -190,6 +215,12 @@ def build_problem(
             np.concatenate(dyaw),
             np.concatenate(mu),
         )
+        if params.prior == "learned":
+            learned_q = _learned.score_reservoirs(
+                caster,
+                res,
+                [_rng(params, name, s, t, STREAM_DEPTH) for t in range(T)],
+            )
         offset = 0
         for t, r in enumerate(res):
             idx = where[t]
@@ -201,9 +232,12 @@ def build_problem(
             axis[t, s] = r.axis
             width[t, s] = r.width
             height[t, s] = r.center[:, 2]
-            eps = _prior.prior_noise(_rng(params, name, s, t, STREAM_PRIOR), K)
-            q = _prior.prior_from_noise(rob[t, s].astype(np.float64), eps)
-            prior[t, s] = np.where(r.valid, q, 0.0)
+            if params.prior == "learned":
+                prior[t, s] = learned_q[t]
+            else:
+                eps = _prior.prior_noise(_rng(params, name, s, t, STREAM_PRIOR), K)
+                q = _prior.prior_from_noise(rob[t, s].astype(np.float64), eps)
+                prior[t, s] = np.where(r.valid, q, 0.0)
         pose_info.append(
             {
                 "landing": round(float(sp.landing[s]), 6),
@@ -234,8 +268,14 @@ def build_problem(
         "repairs": list(mesh.repairs),
         "params": dataclasses.asdict(params),
         "gripper": G.gripper_params(),
-        "prior": _prior.prior_params(),
-        "prior_label": "synthetic GQ-CNN stand-in (not a learned network)",
+        "prior_kind": params.prior,
+        "prior": prior_params(params),
+        "prior_label": (
+            "learned GQ-CNN-style network (weights sha256 "
+            f"{prior_params(params)['weights_sha256'][:12]})"
+            if params.prior == "learned"
+            else "synthetic GQ-CNN stand-in (not a learned network)"
+        ),
         "topple_tilts": {
             "sigma_deg": _poses.TILT_SIGMA_DEG,
             "angles": _poses.TILT_ANGLES,

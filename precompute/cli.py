@@ -13,7 +13,10 @@ BUILD_HELP = """\
 Build problem files (SPEC §1) from meshes: stable poses and landing probabilities,
 topple matrix, T reservoirs of K top-down parallel-jaw grasps per pose, the
 ground-truth success probability of every grasp (Embree ray casting under
-perturbation) and the synthetic GQ-CNN stand-in prior.
+perturbation) and the prior q: --prior learned (a small GQ-CNN-style network that
+sees only the depth image of the pose and the grasp; the default once its weights
+are shipped in precompute/prior_weights/) or --prior synthetic (made from p plus
+seeded noise; the default while no weights are shipped).
 
 Catalogue objects go to <out>/<set>/<name>.npz (default out: the repository's
 data/problems). A mesh of your own (--mesh) goes to <out>/custom/<name>.npz with
@@ -23,6 +26,8 @@ mesh, parameters and code version) are skipped; --force rebuilds them.
 Other commands:
   python -m precompute report      summary.csv and figures of built problems
   python -m precompute calibrate   prior-only gaps per set for a grid of prior noise
+  python -m precompute train-prior generate objects, label them, train the learned
+                                   prior (--quick: about a minute)
 """
 
 
@@ -84,6 +89,13 @@ def _build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--seed", type=int, default=d.seed, help="seed (0)")
     p.add_argument(
+        "--prior",
+        choices=["learned", "synthetic"],
+        default=None,
+        help="prior q of the problems (default: learned when its weights are "
+        "shipped, else synthetic)",
+    )
+    p.add_argument(
         "--jobs", type=int, default=None, help="worker processes (default: CPU cores)"
     )
     p.add_argument("--force", action="store_true", help="rebuild up-to-date files too")
@@ -102,12 +114,19 @@ def _build(argv) -> int:
         problem_path,
         problems_dir,
     )
+    from .learned import default_prior
     from .mesh import UNITS
     from .runner import Task, run_tasks
 
     a = _build_parser().parse_args(argv)
+    prior = a.prior if a.prior is not None else default_prior()
+    if a.prior is None and prior == "synthetic":
+        print(
+            "note: no learned-prior weights are shipped yet "
+            "(python -m precompute train-prior makes them); using --prior synthetic"
+        )
     params = BuildParams(
-        trials=a.trials, grasps=a.grasps, samples=a.samples, seed=a.seed
+        trials=a.trials, grasps=a.grasps, samples=a.samples, seed=a.seed, prior=prior
     ).check()
     if a.jobs is not None and a.jobs < 1:
         raise PrecomputeError(f"--jobs must be at least 1, got {a.jobs}")
@@ -167,6 +186,10 @@ def main(argv=None) -> int:
             from .report import main as report_main
 
             return report_main(argv[1:])
+        if argv and argv[0] == "train-prior":
+            from .train_prior import main as train_main
+
+            return train_main(argv[1:])
         if argv and argv[0] == "calibrate":
             from .calibrate import main as calibrate_main
 

@@ -149,7 +149,9 @@ def downsample(image: DepthImage, factor: int = DOWNSAMPLE) -> DepthImage:
     mean = blocks.astype(np.float64).mean(axis=(1, 3)).astype(np.float32)
     off = (factor - 1) / 2.0  # centre of a block, in native pixels
     return DepthImage(
-        mean, image.u0 + off * image.scale, image.v0 + off * image.scale,
+        mean,
+        image.u0 + off * image.scale,
+        image.v0 + off * image.scale,
         image.scale * factor,
     )
 

@@ -2,8 +2,10 @@
 physics as the evaluation problems (issue 15).
 
 An object (:mod:`precompute.shapes`) is posed as an evaluation object is (stable
-poses, λ ≥ ``poses.LANDING_THRESHOLD``, :mod:`precompute.poses`); of its poses the
-``max_poses`` most likely are used. Per pose: one reservoir of up to ``grasps``
+poses, λ ≥ ``poses.LANDING_THRESHOLD``, :mod:`precompute.poses`), except that
+equivalent resting facets are not merged (the merge test costs seconds an object and
+only matters for the landing probabilities); of its poses the ``max_poses`` most
+likely are used. Per pose: one reservoir of up to ``grasps``
 antipodal grasps (:func:`precompute.grasps.sample_reservoir`), each labelled with its
 robustness p from ``samples`` perturbed executions
 (:func:`precompute.grasps.robustness`, the evaluation problems' perturbation model),
@@ -70,14 +72,17 @@ def label_shape(
     """The labelled poses of one generated object (module docstring)."""
     v, f = shape.vertices, shape.faces
     com = np.asarray(shape.trimesh().center_mass, np.float64)
-    hull = _poses.hull_model(v, f, com)
-    sp = _poses.stable_poses(hull, v, f)
+    with np.errstate(divide="ignore", invalid="ignore"):  # sliver hull triangles
+        hull = _poses.hull_model(v, f, com)
+        sp = _poses.stable_poses(hull, v, f, merge=False)
     pad = face_pad_normals(v, f, G.PAD_RADIUS)
     out = []
     for s in range(min(max_poses, len(sp.landing))):
         tf = sp.transforms[s]
         posed = _rotate(v, tf[:3, :3]) + tf[:3, 3]
-        caster = RayCaster(posed, f, pad_normals={G.PAD_RADIUS: _rotate(pad, tf[:3, :3])})
+        caster = RayCaster(
+            posed, f, pad_normals={G.PAD_RADIUS: _rotate(pad, tf[:3, :3])}
+        )
         hmap = G.height_map(caster)
         res = G.sample_reservoir(caster, hmap, grasps, _rng(seed, shape.index, s, 1))
         idx = np.flatnonzero(res.valid)
