@@ -18,8 +18,10 @@ Writes, under ``--out`` (default ``results/precompute``):
   every valid grasp (all trials, all poses) per object, log scale (the paper's
   Fig. 3, middle row).
 
-The prior is synthetic (a calibrated stand-in for GQ-CNN); every table and figure
-says so.
+Each problem records its prior (learned or synthetic, ``meta["prior_kind"]``); the
+object rows and the set table say which, and give its ROC AUC for p ≥ 0.5. The
+synthetic prior is a calibrated stand-in for GQ-CNN, the learned one a small
+network trained on generated objects (``precompute/prior_weights/MODEL_CARD.md``).
 """
 
 from __future__ import annotations
@@ -45,6 +47,28 @@ def _fmt_list(values, digits: int) -> str:
     return ";".join(f"{v:.{digits}f}" for v in values)
 
 
+def prior_kind(pb) -> str:
+    """The prior a problem file carries: "learned" or "synthetic"."""
+    kind = pb.meta.get("prior_kind")
+    if kind is None:  # files from before the learned prior, and test fakes
+        prior = pb.meta.get("prior")
+        kind = "synthetic" if prior == "synthetic" or isinstance(prior, dict) else "?"
+    return str(kind)
+
+
+def roc_auc(score: np.ndarray, positive: np.ndarray) -> float:
+    """Area under the ROC curve of ``score`` for the classes ``positive`` (ties
+    count one half; NaN when a class is empty)."""
+    from scipy.stats import rankdata
+
+    positive = np.asarray(positive, bool)
+    n1, n0 = int(positive.sum()), int((~positive).sum())
+    if n1 == 0 or n0 == 0:
+        return float("nan")
+    r = rankdata(np.asarray(score, np.float64))
+    return float((r[positive].sum() - n1 * (n1 + 1) / 2) / (n1 * n0))
+
+
 def object_row(pb, set_name: str) -> dict:
     """Summary statistics of one problem (a :class:`legs_jax.problem.Problem`)."""
     from .analysis import prior_only_gaps
@@ -66,6 +90,7 @@ def object_row(pb, set_name: str) -> dict:
     return {
         "set": set_name,
         "object": pb.name,
+        "prior": prior_kind(pb),
         "poses": P,
         "landing": _fmt_list(lam, 4),
         "valid_grasps_per_pose": _fmt_list(n_valid.mean(axis=0), 1),
@@ -74,6 +99,7 @@ def object_row(pb, set_name: str) -> dict:
         "p_star_per_pose": _fmt_list(p_star.mean(axis=0), 3),
         "p_star": float(g["p_star"].mean()),
         "prior_truth_corr": corr,
+        "prior_auc": roc_auc(qv, pv >= GOOD),
         "dexnet_gap": float(g["dexnet"].mean()),
         "k100_ub_gap": float(g["k100_ub"].mean()),
     }
@@ -101,7 +127,11 @@ def set_rows(rows: Sequence[dict]) -> list[dict]:
         entry["prior_truth_corr"] = float(
             np.nanmean([r["prior_truth_corr"] for r in sel])
         )
+        entry["prior_auc"] = float(
+            np.nanmean([r.get("prior_auc", np.nan) for r in sel])
+        )
         entry["frac_p_ge_0.5"] = float(np.nanmean([r["frac_p_ge_0.5"] for r in sel]))
+        entry["prior"] = "+".join(sorted({str(r.get("prior", "?")) for r in sel}))
         out.append(entry)
     return out
 
@@ -122,16 +152,22 @@ def _write_csv(rows: Sequence[dict], path: Path) -> Path:
 
 def _sets_markdown(sets: Sequence[dict]) -> str:
     label = {"dexnet_adv": "Dex-Net adversarial", "egad_eval": "EGAD evaluation"}
+    names = {
+        "synthetic": "synthetic GQ-CNN stand-in",
+        "learned": "learned GQ-CNN-style network",
+    }
+    kinds = sorted({k for s in sets for k in str(s.get("prior", "?")).split("+")})
+    which = " and ".join(names.get(k, k) for k in kinds)
     lines = [
-        "# Prior-only rows of the built problems (prior: synthetic GQ-CNN stand-in)",
+        f"# Prior-only rows of the built problems (prior: {which})",
         "",
         "Optimality gap at the prior's choice (Dex-Net row) and with the best of "
         "the 100 grasps of highest prior (K=100 upper bound), mean ± standard "
         "error across objects, beside the paper's Table I.",
         "",
         "| set | objects | Dex-Net gap | paper | K100 UB gap | paper | "
-        "corr(p, q) | grasps with p ≥ 0.5 |",
-        "|---|---|---|---|---|---|---|---|",
+        "corr(p, q) | ROC AUC (p ≥ 0.5) | grasps with p ≥ 0.5 | prior |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in sets:
         mark = {True: "", False: " (outside ±0.05)"}
@@ -141,7 +177,8 @@ def _sets_markdown(sets: Sequence[dict]) -> str:
             f"{mark[s['dexnet_gap_within_0.05']]} | {s['dexnet_gap_paper']:.2f} | "
             f"{s['k100_ub_gap']:.3f} ± {s['k100_ub_gap_se']:.3f}"
             f"{mark[s['k100_ub_gap_within_0.05']]} | {s['k100_ub_gap_paper']:.2f} | "
-            f"{s['prior_truth_corr']:.2f} | {100 * s['frac_p_ge_0.5']:.1f} % |"
+            f"{s['prior_truth_corr']:.2f} | {s.get('prior_auc', float('nan')):.2f} | "
+            f"{100 * s['frac_p_ge_0.5']:.1f} % | {s.get('prior', '?')} |"
         )
     return "\n".join(lines) + "\n"
 
