@@ -61,7 +61,7 @@ CROP = 32
 CLIP = 0.08
 DEPTH_SCALE = 0.03
 _Z_OFFSET = _depth.HEIGHT - 0.03
-_BATCH = 512  # grasps per scoring call (padded; small batches stay in cache)
+_BATCH = 256  # grasps per scoring call (padded; small batches stay in cache)
 _PAD = 32  # image sides are padded up to a multiple of this (few compilations)
 
 

@@ -104,5 +104,9 @@ def score_reservoirs(caster, reservoirs, rngs) -> np.ndarray:
         v = np.flatnonzero(res.valid)
         if len(v):
             img = _depth.add_noise(clean, rng)
-            out[t, v] = scorer(img, res.center[v], res.axis[v])
+            # the grasps as the problem file stores them (float32): q is a
+            # function of the recorded grasp poses and the image alone
+            c = res.center[v].astype(np.float32)
+            a = res.axis[v].astype(np.float32)
+            out[t, v] = scorer(img, c, a)
     return out
