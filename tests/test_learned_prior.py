@@ -356,3 +356,23 @@ def test_metrics_against_known_answers():
     # pairs (pos, neg): (0.3, 0.7) wrong, (0.3, 0.1) right, (0.6, 0.7) wrong,
     # (0.6, 0.1) right -> AUC 0.5; accuracy: 0.6 and 0.1 right -> 0.5
     assert m["roc_auc"] == 0.5 and m["accuracy"] == 0.5
+
+
+@pytest.mark.slow
+def test_train_prior_is_deterministic_whatever_the_process_count(tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    shas = []
+    for jobs in ("1", "2"):
+        out = tmp_path / jobs
+        r = subprocess.run(
+            [sys.executable, "-m", "precompute", "train-prior", "--quick", "--quiet"]
+            + ["--out", str(out), "--jobs", jobs],
+            capture_output=True,
+            text=True,
+            env=env,
+            cwd=tmp_path,
+            timeout=300,
+        )
+        assert r.returncode == 0, r.stderr[-2000:]
+        shas.append(Q.file_sha256(out / "weights.npz"))
+    assert shas[0] == shas[1]
