@@ -376,3 +376,19 @@ def test_train_prior_is_deterministic_whatever_the_process_count(tmp_path):
         assert r.returncode == 0, r.stderr[-2000:]
         shas.append(Q.file_sha256(out / "weights.npz"))
     assert shas[0] == shas[1]
+
+
+def test_report_reliability_counts_and_auc_known_answers():
+    from precompute.report import reliability_counts, roc_auc
+
+    q = np.array([0.05, 0.07, 0.55, 0.95, 1.0])
+    p = np.array([0.0, 0.2, 0.6, 1.0, 0.4])
+    c = reliability_counts(q, p)
+    assert c.shape == (10, 4)
+    assert c[0].tolist() == pytest.approx([2, 0.12, 0.2, 0])
+    assert c[5].tolist() == pytest.approx([1, 0.55, 0.6, 1])
+    assert c[9].tolist() == pytest.approx([2, 1.95, 1.4, 1])  # q = 1 in the top bin
+    assert c[:, 0].sum() == 5
+    # positives 0.55, 0.95 against negatives 0.05, 0.07, 1.0: 4 of 6 pairs right
+    assert roc_auc(q, p >= 0.5) == pytest.approx(4 / 6)
+    assert np.isnan(roc_auc(q, np.zeros(5, bool)))
