@@ -461,9 +461,10 @@ def _parser() -> argparse.ArgumentParser:
     d = TrainConfig()
     p = argparse.ArgumentParser(
         prog="python -m precompute train-prior",
-        description=__doc__.split("\n\n")[0]
-        + " Generates the training objects, labels them, trains the network and "
-        "writes weights.npz, metrics.json and MODEL_CARD.md.",
+        description="Data and weights of the learned prior: generate the training "
+        "objects, label them with the evaluation problems' physics, train the "
+        "network and write weights.npz, metrics.json, MODEL_CARD.md and "
+        "reliability_test.png (default folder: precompute/prior_weights).",
     )
     p.add_argument("--quick", action="store_true", help="a run of about a minute")
     for name, kind, help_ in [
