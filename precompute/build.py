@@ -17,10 +17,13 @@ depends on the order of work or the number of processes, and the same inputs giv
 byte-identical files.
 
 Up-to-date check: a problem file records ``meta["build_hash"]``, a SHA-256 of the
-mesh file's bytes, its units, every build parameter, the gripper and prior
-constants (for the learned prior: the weights' SHA-256, camera and noise) and
-``CODE_VERSION``; a file whose hash matches is not rebuilt.
-``CODE_VERSION`` is bumped whenever a change alters the output.
+mesh file's bytes, its units and size rule, every build parameter, the gripper and
+prior constants (for the learned prior: the weights' SHA-256, camera and noise) and
+``CODE_VERSION``; a file whose hash matches is not rebuilt. ``CODE_VERSION`` is
+bumped whenever a change alters the output. A file that differs only in its prior's
+constants (its hash matches when computed with the prior it records) keeps its
+poses, grasps and ground truth: only q is recomputed (:func:`reprior`),
+byte-identical to a full build with the new constants.
 """
 
 from __future__ import annotations
@@ -51,6 +54,8 @@ __all__ = [
     "build_problem",
     "build_hash",
     "object_key",
+    "reprior",
+    "synthetic_prior",
     "problem_path",
     "read_meta",
     "is_up_to_date",
@@ -108,8 +113,15 @@ def object_key(name: str) -> int:
 
 
 def build_hash(
-    mesh_sha256: str, units: str, name: str, params: BuildParams, fit: str = "none"
+    mesh_sha256: str,
+    units: str,
+    name: str,
+    params: BuildParams,
+    fit: str = "none",
+    prior: dict | None = None,
 ) -> str:
+    """The hash of everything a build depends on; ``prior``: the prior's constants
+    (default: the current ones of the prior ``params.prior``)."""
     hashed = dataclasses.asdict(params)
     del hashed["prior"]  # in "prior" below (synthetic builds keep their old hash)
     blob = json.dumps(
@@ -120,7 +132,7 @@ def build_hash(
             "name": name,
             "params": hashed,
             "gripper": G.gripper_params(),
-            "prior": prior_params(params),
+            "prior": prior if prior is not None else prior_params(params),
             "tilt": [_poses.TILT_SIGMA_DEG, _poses.TILT_ANGLES, _poses.TILT_AZIMUTHS],
             "code_version": CODE_VERSION,
         },
@@ -175,7 +187,7 @@ def build_problem(
         on_poses(P)
 
     rob = np.zeros((T, P, K), np.float32)
-    prior = np.zeros((T, P, K), np.float32)
+    learned_prior = np.zeros((T, P, K), np.float32)
     valid = np.zeros((T, P, K), bool)
     center = np.zeros((T, P, K, 3), np.float32)
     axis = np.zeros((T, P, K, 3), np.float32)
@@ -233,11 +245,7 @@ def build_problem(
             width[t, s] = r.width
             height[t, s] = r.center[:, 2]
             if params.prior == "learned":
-                prior[t, s] = learned_q[t]
-            else:
-                eps = _prior.prior_noise(_rng(params, name, s, t, STREAM_PRIOR), K)
-                q = _prior.prior_from_noise(rob[t, s].astype(np.float64), eps)
-                prior[t, s] = np.where(r.valid, q, 0.0)
+                learned_prior[t, s] = learned_q[t]
         pose_info.append(
             {
                 "landing": round(float(sp.landing[s]), 6),
@@ -250,6 +258,10 @@ def build_problem(
         if on_pose_done is not None:
             on_pose_done()
 
+    if params.prior == "learned":
+        prior = learned_prior
+    else:
+        prior = synthetic_prior(params, name, rob, valid)
     landing = sp.landing / sp.landing.sum()
     topple = topple / topple.sum(axis=1, keepdims=True)
     meta = {
@@ -268,14 +280,7 @@ def build_problem(
         "repairs": list(mesh.repairs),
         "params": dataclasses.asdict(params),
         "gripper": G.gripper_params(),
-        "prior_kind": params.prior,
-        "prior": prior_params(params),
-        "prior_label": (
-            "learned GQ-CNN-style network (weights sha256 "
-            f"{prior_params(params)['weights_sha256'][:12]})"
-            if params.prior == "learned"
-            else "synthetic GQ-CNN stand-in (not a learned network)"
-        ),
+        **_prior_meta(params),
         "topple_tilts": {
             "sigma_deg": _poses.TILT_SIGMA_DEG,
             "angles": _poses.TILT_ANGLES,
@@ -303,6 +308,111 @@ def build_problem(
         meta=meta,
     )
     return problem.validate()
+
+
+def synthetic_prior(
+    params: BuildParams, name: str, rob: np.ndarray, valid: np.ndarray
+) -> np.ndarray:
+    """[T, P, K] float32 synthetic q (:mod:`.prior`, current constants) of every
+    reservoir slot, 0 on padding; each (trial, pose) from its own seeded stream."""
+    T, P, K = rob.shape
+    prior = np.zeros((T, P, K), np.float32)
+    for t in range(T):
+        for s in range(P):
+            eps = _prior.prior_noise(_rng(params, name, s, t, STREAM_PRIOR), K)
+            q = _prior.prior_from_noise(rob[t, s].astype(np.float64), eps)
+            prior[t, s] = np.where(valid[t, s], q, 0.0)
+    return prior
+
+
+def _prior_meta(params: BuildParams) -> dict:
+    """The meta entries that name the prior of a build."""
+    constants = prior_params(params)
+    if params.prior == "learned":
+        label = (
+            "learned GQ-CNN-style network (weights sha256 "
+            f"{constants['weights_sha256'][:12]})"
+        )
+    else:
+        label = "synthetic GQ-CNN stand-in (not a learned network)"
+    return {"prior_kind": params.prior, "prior": constants, "prior_label": label}
+
+
+@dataclasses.dataclass(frozen=True)
+class _Slots:
+    """A reservoir as a problem file stores it (what the learned prior scores)."""
+
+    valid: np.ndarray  # [K]
+    center: np.ndarray  # [K, 3] float32
+    axis: np.ndarray  # [K, 3] float32
+
+
+def _learned_prior_of(info, params: BuildParams, pb) -> np.ndarray | None:
+    """[T, P, K] learned q of the grasps of problem ``pb`` (catalogue object
+    ``info``), as a full build computes it: the mesh posed again (the same
+    deterministic poses, checked against the file's), each pose rendered, the
+    stored grasps scored. None when the poses do not match (a full build then)."""
+    try:
+        mesh = load_mesh(info.mesh_path, info.units, info.fit)
+        hull = _poses.hull_model(mesh.vertices, mesh.faces, mesh.center_mass)
+        sp = _poses.stable_poses(
+            hull, mesh.vertices, mesh.faces, threshold=params.landing_threshold
+        )
+    except (PrecomputeError, ValueError):
+        return None
+    tfs = sp.transforms
+    if tfs.shape != pb.pose_transform.shape or not np.array_equal(
+        tfs.astype(np.float32), pb.pose_transform
+    ):
+        return None
+    T, P, K = pb.prior.shape
+    q = np.zeros((T, P, K), np.float32)
+    for s in range(P):
+        tf = tfs[s]
+        caster = RayCaster(_rotate(mesh.vertices, tf[:3, :3]) + tf[:3, 3], mesh.faces)
+        slots = [
+            _Slots(pb.valid[t, s], pb.grasp_center[t, s], pb.grasp_axis[t, s])
+            for t in range(T)
+        ]
+        rngs = [_rng(params, info.name, s, t, STREAM_DEPTH) for t in range(T)]
+        q[:, s] = _learned.score_reservoirs(caster, slots, rngs)
+    return q
+
+
+def reprior(path: Path, info, params: BuildParams) -> bool:
+    """Recompute the prior of the problem file at ``path`` (catalogue object
+    ``info``) with the current constants of the prior ``params.prior``, when the
+    file is current in everything else (whichever prior it carries); True when it
+    was rewritten (False: it needs a full build). The learned prior needs the
+    poses again (seconds an object) and then only renders and scores."""
+    import dataclasses as _dc
+
+    from legs_jax.problem import load, save
+
+    from .mesh import file_sha256
+
+    meta = read_meta(path)
+    if meta is None or not isinstance(meta.get("prior"), dict):
+        return False
+    mesh_sha = file_sha256(info.mesh_path)
+    old = build_hash(mesh_sha, info.units, info.name, params, info.fit, meta["prior"])
+    if meta.get("build_hash") != old:
+        return False
+    pb = load(path)
+    if params.prior == "learned":
+        q = _learned_prior_of(info, params, pb)
+        if q is None:
+            return False
+    else:
+        q = synthetic_prior(params, info.name, pb.robustness, pb.valid)
+    new_meta = dict(pb.meta)
+    new_meta.update(_prior_meta(params))
+    new_meta["params"] = dataclasses.asdict(params)  # its prior field included
+    new_meta["build_hash"] = build_hash(
+        mesh_sha, info.units, info.name, params, info.fit
+    )
+    save(_dc.replace(pb, prior=q, meta=new_meta), path)
+    return True
 
 
 def _rotate(points: np.ndarray, rot: np.ndarray) -> np.ndarray:
@@ -413,6 +523,7 @@ def ensure(
         i.name: problem_path(i, out) for i in _catalog.resolve(list(names), root=root)
     }
     todo = out_of_date(names, data_dir=root, params=params)
+    todo = [i for i in todo if not reprior(problem_path(i, out), i, params)]
     if todo:
         build_many(
             todo,

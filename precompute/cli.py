@@ -18,6 +18,9 @@ sees only the depth image of the pose and the grasp; the default once its weight
 are shipped in precompute/prior_weights/) or --prior synthetic (made from p plus
 seeded noise; the default while no weights are shipped).
 
+A file current in everything but the prior's constants keeps its poses, grasps
+and ground truth; only its prior is recomputed.
+
 Catalogue objects go to <out>/<set>/<name>.npz (default out: the repository's
 data/problems). A mesh of your own (--mesh) goes to <out>/custom/<name>.npz with
 out defaulting to ./problems under the current folder. Up-to-date files (same
@@ -113,6 +116,7 @@ def _build(argv) -> int:
         is_up_to_date,
         problem_path,
         problems_dir,
+        reprior,
     )
     from .learned import default_prior
     from .mesh import UNITS
@@ -154,15 +158,27 @@ def _build(argv) -> int:
             infos = catalog.objects(a.set_name)
         else:
             infos = catalog.resolve(a.object)
-        tasks, skipped = [], []
-        for i in infos:
+        from tqdm import tqdm
+
+        tasks, skipped, repriored = [], [], []
+        # recomputing a learned prior renders and scores every pose: show it
+        bar = tqdm(infos, desc="check", unit="obj", disable=a.quiet, leave=False)
+        for i in bar:
+            bar.set_postfix_str(i.name, refresh=False)
             dest = problem_path(i, out)
             if not a.force and is_up_to_date(dest, expected_hash(i, params)):
                 skipped.append(dest)
+            elif not a.force and reprior(dest, i, params):
+                repriored.append(dest)
             else:
                 tasks.append(Task(i.mesh_path, i.units, i.name, i.set, dest, i.fit))
     if skipped:
         print(f"{len(skipped)} up-to-date problem file(s) skipped (--force rebuilds)")
+    if a.mesh is None and repriored:
+        print(
+            f"{len(repriored)} problem file(s) current but for the prior's constants: "
+            "prior recomputed, poses and grasps kept"
+        )
     if not tasks:
         return 0
     jobs = a.jobs if a.jobs is not None else (os.cpu_count() or 1)

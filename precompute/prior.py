@@ -26,7 +26,9 @@ SLOPE = 1.5
 NOISE = 1.0
 
 
-def prior_params(noise: float = NOISE) -> dict:
+def prior_params(noise: float | None = None) -> dict:
+    """The prior's constants (``noise``: NOISE unless given), as recorded."""
+    noise = NOISE if noise is None else noise
     return {
         "model": "sigmoid(slope * (p - 0.5 + noise * N(0, 1)))",
         "slope": SLOPE,
@@ -42,8 +44,10 @@ def prior_noise(rng: np.random.Generator, k: int) -> np.ndarray:
 
 
 def prior_from_noise(
-    p: np.ndarray, eps: np.ndarray, noise: float = NOISE
+    p: np.ndarray, eps: np.ndarray, noise: float | None = None
 ) -> np.ndarray:
-    """q in (0, 1) from p and the reservoir's noise draws (same shapes)."""
+    """q in (0, 1) from p and the reservoir's noise draws (same shapes); ``noise``:
+    NOISE unless given."""
+    noise = NOISE if noise is None else noise
     z = SLOPE * (np.asarray(p, np.float64) - 0.5 + noise * np.asarray(eps))
     return 1.0 / (1.0 + np.exp(-z))

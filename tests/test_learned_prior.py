@@ -392,3 +392,44 @@ def test_report_reliability_counts_and_auc_known_answers():
     # positives 0.55, 0.95 against negatives 0.05, 0.07, 1.0: 4 of 6 pairs right
     assert roc_auc(q, p >= 0.5) == pytest.approx(4 / 6)
     assert np.isnan(roc_auc(q, np.zeros(5, bool)))
+
+
+def test_switching_a_built_file_to_the_learned_prior_rescores_only(
+    tmp_path, random_weights, monkeypatch
+):
+    """A file current in everything but its prior gets only q recomputed, from the
+    pose's image and the stored grasps: byte-identical to a full learned build."""
+    import shutil
+
+    import precompute.build as B
+    from precompute.build import read_meta
+
+    folder = tmp_path / "meshes" / "dexnet_adv"
+    folder.mkdir(parents=True)
+    trimesh.creation.box((0.03, 0.05, 0.02)).export(folder / "brick.obj")
+    small = {"trials": 1, "grasps": 30, "samples": 10}
+    path = precompute.ensure(
+        ["brick"],
+        data_dir=tmp_path,
+        progress=False,
+        jobs=1,
+        params=BuildParams(**small, prior="synthetic"),
+    )["brick"]
+    before = np.load(path)
+    monkeypatch.setattr(learned, "weights_path", lambda: random_weights)
+    learned_params = BuildParams(**small, prior="learned")
+    with monkeypatch.context() as m:
+        m.setattr(B, "build_problem", None)  # a full build would fail
+        precompute.ensure(
+            ["brick"], data_dir=tmp_path, progress=False, jobs=1, params=learned_params
+        )
+    after = np.load(path)
+    assert np.array_equal(before["robustness"], after["robustness"])
+    assert not np.array_equal(before["prior"], after["prior"])
+    assert read_meta(path)["prior_kind"] == "learned"
+    fresh = tmp_path / "fresh"
+    shutil.copytree(tmp_path / "meshes", fresh / "meshes")
+    path2 = precompute.ensure(
+        ["brick"], data_dir=fresh, progress=False, jobs=1, params=learned_params
+    )["brick"]
+    assert path2.read_bytes() == path.read_bytes()

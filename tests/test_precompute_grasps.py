@@ -257,6 +257,33 @@ def test_build_is_byte_identical_and_seeded(tmp_path):
     assert pb.landing.sum() == pytest.approx(1.0, abs=1e-5)
 
 
+def test_a_new_prior_constant_recomputes_only_the_prior(tmp_path, monkeypatch):
+    import precompute.build as B
+
+    mesh = _tiny_catalogue(tmp_path)
+    assert mesh.is_file()
+    path = precompute.ensure(
+        ["brick"], data_dir=tmp_path, progress=False, jobs=1, params=_small()
+    )["brick"]
+    before = np.load(path)
+    monkeypatch.setattr(Q, "NOISE", Q.NOISE * 0.5)
+    monkeypatch.setattr(B, "build_problem", None)  # a full build would fail
+    precompute.ensure(["brick"], data_dir=tmp_path, progress=False, params=_small())
+    after = np.load(path)
+    assert np.array_equal(before["robustness"], after["robustness"])
+    assert not np.array_equal(before["prior"], after["prior"])
+    assert read_meta(path)["prior"]["noise"] == Q.NOISE
+    monkeypatch.undo()
+    monkeypatch.setattr(Q, "NOISE", Q.NOISE * 0.5)
+    # byte-identical to a full build with the new constant
+    fresh = tmp_path / "fresh"
+    shutil.copytree(tmp_path / "meshes", fresh / "meshes")
+    path2 = precompute.ensure(
+        ["brick"], data_dir=fresh, progress=False, jobs=1, params=_small()
+    )["brick"]
+    assert path2.read_bytes() == path.read_bytes()
+
+
 def _tiny_catalogue(root: Path) -> Path:
     folder = root / "meshes" / "dexnet_adv"
     folder.mkdir(parents=True)
