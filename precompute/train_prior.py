@@ -54,7 +54,7 @@ class TrainConfig:
     poses: int = 4
     samples: int = 50
     seed: int = 0
-    epochs: int = 8
+    epochs: int = 6
     batch: int = 128
     lr: float = 1e-3
 
