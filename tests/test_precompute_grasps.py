@@ -240,7 +240,9 @@ def test_build_is_byte_identical_and_seeded(tmp_path):
             info.mesh_path,
             units="m",
             name="bar_clamp",
-            params=BuildParams(trials=2, grasps=60, samples=20, seed=seed),
+            params=BuildParams(
+                trials=2, grasps=60, samples=20, seed=seed, prior="synthetic"
+            ),
         )
         return save(pb, tmp_path / name)
 
