@@ -926,8 +926,12 @@ def generate(
         )
         written.append(path)
 
+    def step_problem_model():
+        ctx["problem_model"] = problem_model_context(results)
+
     steps = [
         ("Table I, wins, per-object gaps", step_main),
+        ("problem model before and after", step_problem_model),
         ("Fig. 3 case study", step_fig3),
         ("Fig. 4 early stopping", step_fig4),
         ("appendix: prior strength", step_prior),
@@ -956,6 +960,41 @@ def generate(
     rp.write_text(report_path, rp.build_report(ctx))
     written.append(report_path)
     return written, problems
+
+
+def _set_summary(path: Path) -> pd.DataFrame | None:
+    """Per set: share of grasps with p >= 0.5, λ-weighted p*, corr(p, q) and the
+    prior-only gaps, means over the objects of ``summary.csv`` (None if absent)."""
+    if not path.is_file():
+        return None
+    d = pd.read_csv(path)
+    return d.groupby("set").agg(
+        objects=("object", "count"),
+        frac_good=("frac_p_ge_0.5", "mean"),
+        p_star=("p_star", "mean"),
+        corr=("prior_truth_corr", "mean"),
+        dexnet_gap=("dexnet_gap", "mean"),
+        k100_ub_gap=("k100_ub_gap", "mean"),
+    )
+
+
+def problem_model_context(results: Path) -> dict[str, Any] | None:
+    """The problem model now (``precompute/summary.csv``) and before it changed
+    (``previous/``: copies of the earlier results, see its README), for the
+    report's before/after section; None without ``previous/``."""
+    prev = Path(results) / "previous"
+    if not prev.is_dir():
+        return None
+    out: dict[str, Any] = {
+        "sets_before": _set_summary(prev / "summary.csv"),
+        "sets_after": _set_summary(Path(results) / "precompute" / "summary.csv"),
+    }
+    for name in ("table1", "wins", "early_stopping"):
+        f = prev / f"{name}.csv"
+        out[f"{name}_before"] = (
+            pd.read_csv(f, keep_default_na=False) if f.is_file() else None
+        )
+    return out
 
 
 def build_parser() -> argparse.ArgumentParser:
