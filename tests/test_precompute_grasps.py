@@ -227,7 +227,8 @@ def test_prior_only_gaps_match_a_hand_computation():
 
 
 def _small():
-    return BuildParams(trials=2, grasps=60, samples=20)
+    # the synthetic prior: these tests change its constants
+    return BuildParams(trials=2, grasps=60, samples=20, prior="synthetic")
 
 
 def test_build_is_byte_identical_and_seeded(tmp_path):
