@@ -11,8 +11,7 @@ from typing import Any
 
 __all__ = [
     "ConfigError",
-    "METHODS",
-    "HPARAM_DEFAULTS",
+    "Method",
     "Problem",
     "ProblemBatch",
     "RunResult",
@@ -25,8 +24,7 @@ __all__ = [
 
 _WHERE = {
     "ConfigError": "legs_jax.errors",
-    "METHODS": "legs_jax.engine",
-    "HPARAM_DEFAULTS": "legs_jax.engine",
+    "Method": "legs_jax.methods.base",
     "RunResult": "legs_jax.engine",
     "run": "legs_jax.engine",
     "Problem": "legs_jax.problem",

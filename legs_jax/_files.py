@@ -3,8 +3,37 @@
 from __future__ import annotations
 
 import os
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import IO, Any
 
-__all__ = ["public_mode"]
+__all__ = ["atomic_write", "public_mode"]
+
+
+def atomic_write(
+    path: str | os.PathLike, write: Callable[[IO[Any]], Any], *, text: bool = False
+) -> Path:
+    """Write ``path`` through a temporary file beside it, renamed into place once
+    ``write(fh)`` has filled it (a reader never sees a partial file; on any error
+    the temporary file is removed). ``text``: UTF-8 with LF line ends."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        if text:
+            fh = os.fdopen(fd, "w", encoding="utf-8", newline="\n")
+        else:
+            fh = os.fdopen(fd, "wb")
+        with fh:
+            write(fh)
+        public_mode(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
 
 
 def public_mode(path: str | os.PathLike) -> None:

@@ -17,6 +17,8 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 import pandas as pd
 
+import sweeps
+
 __all__ = [
     "ARM_LABELS",
     "BOUNDS",
@@ -28,10 +30,13 @@ __all__ = [
     "PAPER_SWEEPS",
     "PAPER_TABLE1",
     "PAPER_WINS",
+    "PROPOSED",
     "SET_LABELS",
     "WIN_TOLERANCE",
     "AnalysisError",
     "active_set_trace",
+    "arm_declaration",
+    "oracle_methods",
     "arm_label",
     "arms_of",
     "bound_summary",
@@ -49,62 +54,49 @@ __all__ = [
     "winners",
 ]
 
-# Methods in the column order of the paper's Table I.
-METHODS = (
-    "dexnet",
-    "tql",
-    "borges_100",
-    "k100_ub",
-    "borges_2000",
-    "legs_no_as",
-    "legs",
-)
-# Methods compared for a "win" (SPEC §5): every learning method and Dex-Net; the
-# K=100 upper bound is an oracle row, not a method.
-COMPETITORS = ("dexnet", "tql", "borges_100", "borges_2000", "legs_no_as", "legs")
+_MAIN = sweeps.get("main")
+
+
+def _table_order() -> tuple[str, ...]:
+    from legs_jax import methods
+
+    rest = tuple(m for m in methods.names() if m not in _MAIN.TABLE_ORDER)
+    return tuple(_MAIN.TABLE_ORDER) + rest
+
+
+def _competitors() -> tuple[str, ...]:
+    from legs_jax import methods
+
+    declared = {m for m, _, _ in _MAIN.ARMS}
+    return tuple(
+        m for m in _table_order() if m in declared and not methods.get(m).oracle
+    )
+
+
+def _arm_labels() -> dict[tuple[str, str], str]:
+    from legs_jax import methods
+
+    out = {(m, ""): methods.get(m).label or m for m in methods.names()}
+    out.update({arm: v["label"] for arm, v in _MAIN.VARIANTS.items()})
+    return out
+
+
+# Methods in the column order of the paper's Table I, then every other one.
+METHODS = _table_order()
+# Methods compared for a "win" (SPEC §5): those the main experiment declares, but
+# not an oracle row (the K=100 upper bound).
+COMPETITORS = _competitors()
 WIN_TOLERANCE = 0.005
 HPARAM_COLUMNS = ("s", "prior_offset", "delta", "gamma", "k", "n", "epsilon", "eta")
 
-ARM_LABELS = {
-    ("dexnet", ""): "Dex-Net (synthetic prior)",
-    ("tql", ""): "TQL",
-    ("borges_100", ""): "BORGES (K_s=100)",
-    ("k100_ub", ""): "K_s=100 upper bound",
-    ("borges_2000", ""): "BORGES (K_s=2000)",
-    ("borges_2000", "orig_prior"): "BORGES (K_s=2000), original prior (s=5, offset 0)",
-    ("legs_no_as", ""): "LEGS(-AS)",
-    ("legs", ""): "LEGS",
-}
+ARM_LABELS = _arm_labels()
 SET_LABELS = {"dexnet_adv": "Dex-Net Adversarial", "egad_eval": "EGAD! evaluation"}
 # Object counts of the paper's data sets.
 PAPER_OBJECTS = {"dexnet_adv": 14, "egad_eval": 39}
 
-# Table I of the paper: optimality gap at H = 3000, mean and SE across objects.
-PAPER_TABLE1 = {
-    "dexnet_adv": {
-        "dexnet": (0.56, 0.07),
-        "tql": (0.23, 0.08),
-        "borges_100": (0.13, 0.07),
-        "k100_ub": (0.08, 0.04),
-        "borges_2000": (0.04, 0.03),
-        "legs_no_as": (0.22, 0.06),
-        "legs": (0.04, 0.03),
-    },
-    "egad_eval": {
-        "dexnet": (0.59, 0.03),
-        "tql": (0.32, 0.04),
-        "borges_100": (0.25, 0.04),
-        "k100_ub": (0.13, 0.03),
-        "borges_2000": (0.17, 0.03),
-        "legs_no_as": (0.28, 0.04),
-        "legs": (0.14, 0.03),
-    },
-}
-# Win counts stated in the paper (Section 5.3): (wins, objects).
-PAPER_WINS = {
-    "dexnet_adv": {"legs": (10, 14), "borges_2000": (5, 14)},
-    "egad_eval": {"legs": (25, 39), "borges_2000": (14, 39)},
-}
+PAPER_TABLE1 = _MAIN.PAPER_TABLE1
+PAPER_WINS = _MAIN.PAPER_WINS
+PROPOSED = _MAIN.PROPOSED  # the method the paper proposes (LEGS)
 # Section 5.4: accuracy and tightness of the stopping bound on the Dex-Net set.
 PAPER_EARLY_STOPPING = {"accuracy": 0.958, "tightness": 0.0297}
 # Appendix tables, LEGS on the bar clamp: value -> (mean, SE).
@@ -141,11 +133,34 @@ class AnalysisError(ValueError):
 
 
 # ------------------------------------------------------------------------ helpers
+def oracle_methods() -> tuple[str, ...]:
+    """The registered methods that are oracle rows (never compared or bolded)."""
+    from legs_jax import methods
+
+    return tuple(m for m in methods.names() if methods.get(m).oracle)
+
+
+def arm_declaration(method: str, variant: str = "") -> dict:
+    """``label``, ``short_label`` and ``style`` of an arm: a declared variant's
+    (the experiment declarations), else its method's (:mod:`legs_jax.methods`);
+    empty for an unknown method."""
+    from legs_jax import methods
+
+    if (method, variant) in _MAIN.VARIANTS:
+        return dict(_MAIN.VARIANTS[(method, variant)])
+    if method not in methods.names():
+        return {}
+    m = methods.get(method)
+    return dict(label=m.label, short_label=m.short_label, style=dict(m.style))
+
+
 def arm_label(method: str, variant: str = "") -> str:
-    """Display name of an arm; unknown variants are shown in brackets."""
-    if (method, variant) in ARM_LABELS:
-        return ARM_LABELS[(method, variant)]
-    base = ARM_LABELS.get((method, ""), method)
+    """Display name of an arm (the method's declared label, a declared variant's
+    label); unknown variants are shown in brackets."""
+    labels = _arm_labels()  # a user's method may have joined the registry
+    if (method, variant) in labels:
+        return labels[(method, variant)]
+    base = labels.get((method, ""), method)
     return f"{base} [{variant}]" if variant else base
 
 
@@ -170,7 +185,8 @@ def order_sets(sets: Iterable[str]) -> list[str]:
 
 
 def _arm_rank(method: str, variant: str) -> tuple[int, int, str]:
-    m = METHODS.index(method) if method in METHODS else len(METHODS)
+    order = _table_order()  # a user's method may have joined the registry
+    m = order.index(method) if method in order else len(order)
     return (m, 0 if variant == "" else 1, variant)
 
 
@@ -479,7 +495,7 @@ def first_legs_rollout(active_set: pd.DataFrame) -> pd.DataFrame:
     whose active sets are recorded)."""
     a = active_set
     if "method" in a.columns:
-        a = a[a["method"] == "legs"]
+        a = a[a["method"] == sweeps.get("case_study").ACTIVE_SET_METHODS[0]]
     if "grid_index" in a.columns and len(a):
         a = a[a["grid_index"] == a["grid_index"].min()]
     for c in ("trial", "rollout"):

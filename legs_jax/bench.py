@@ -41,23 +41,22 @@ import numpy as np
 # Methods of the table; the others get a rate in the full run (for the
 # projection) or borrow the rate of a method with the same per-step work.
 TABLE_METHODS = ("borges_2000", "legs", "tql")
-ALL_METHODS = (
-    "dexnet",
-    "k100_ub",
-    "borges_100",
-    "borges_2000",
-    "legs_no_as",
-    "legs",
-    "tql",
-)
+
+
+def _all_methods() -> tuple[str, ...]:
+    """Every registered method (legs_jax.methods), in registry order (imported
+    late: JAX must start after the device flags are set)."""
+    from legs_jax import methods
+
+    return methods.names()
+
+
 PROXY = {
     "dexnet": "tql",
     "k100_ub": "tql",
     "borges_100": "legs",
     "legs_no_as": "borges_2000",
 }
-# Methods whose per-step work is dense over all K grasps (small batches suit them).
-DENSE = ("borges_2000", "legs_no_as")
 # Dirichlet checks every this many steps for the methods the main sweep checks
 # (sweeps.main.CHECK_METHODS); the others run without, as in the sweep.
 CHECK_EVERY = 100
@@ -87,7 +86,7 @@ class Settings:
 
 def _with_table(methods: Sequence[str]) -> tuple[str, ...]:
     """The table's methods always run (the projection borrows their rates)."""
-    return tuple(m for m in ALL_METHODS if m in methods or m in TABLE_METHODS)
+    return tuple(m for m in _all_methods() if m in methods or m in TABLE_METHODS)
 
 
 def settings(quick: bool, methods: Sequence[str] | None) -> Settings:
@@ -123,7 +122,7 @@ def settings(quick: bool, methods: Sequence[str] | None) -> Settings:
         rollouts_sparse=2048,
         reference_horizon=1000,
         reference_seconds=3.0,
-        methods=_with_table(methods or ALL_METHODS),
+        methods=_with_table(methods or _all_methods()),
         numpy_all_cores=True,
     )
 
@@ -362,7 +361,10 @@ def bench_jax_engine(method: str, cfg: Settings, problem) -> dict[str, float]:
     from legs_jax.problem import stack
 
     batch = stack([problem])
-    total = cfg.rollouts_dense if method in DENSE else cfg.rollouts_sparse
+    from legs_jax import methods
+
+    dense = methods.get(method).dense  # per-step work O(K): fewer rollouts
+    total = cfg.rollouts_dense if dense else cfg.rollouts_sparse
     per_trial = max(1, total // cfg.trials)
     steps = cfg.trials * per_trial * cfg.horizon
 
@@ -652,7 +654,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--methods",
         nargs="+",
-        choices=ALL_METHODS,
+        choices=_all_methods(),
         metavar="METHOD",
         help="methods to time besides the table's three (default: none with "
         "--quick, all seven otherwise); a method not timed is projected at the rate "

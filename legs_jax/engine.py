@@ -40,61 +40,33 @@ from legs_jax import keys as keys_mod
 from legs_jax import methods as methods_mod
 from legs_jax import sampling
 from legs_jax.errors import ConfigError
-from legs_jax.methods.base import (
-    Config,
-    Ctx,
-    HParams,
-    Method,
-    Tables,
-    prune_mask,
-)
+from legs_jax.methods.base import TOP_FIXED, Config, Ctx, Method, Tables
 from legs_jax.problem import ProblemBatch
 
 __all__ = [
     "DELTA_STOP",
-    "HPARAM_DEFAULTS",
-    "METHODS",
     "NUM_DIRICHLET_SAMPLES",
-    "STATIC_HPARAMS",
-    "TRACED_HPARAMS",
+    "EnvState",
     "RunResult",
-    "legs_prune",
     "compiled",
     "dirichlet_checks",
     "dirichlet_quantiles",
+    "env_reset",
+    "env_step",
     "make_tables",
     "run",
     "simulate",
     "trace_counts",
 ]
 
-METHODS = (
-    "dexnet",
-    "k100_ub",
-    "borges_100",
-    "borges_2000",
-    "legs_no_as",
-    "legs",
-    "tql",
-)
-HPARAM_DEFAULTS: dict[str, float | int] = dict(
-    s=1.0, prior_offset=1.0, delta=0.05, gamma=0.2, epsilon=0.1, eta=0.1, k=100, n=100
-)
-TRACED_HPARAMS = ("s", "prior_offset", "delta", "gamma", "epsilon", "eta")
-STATIC_HPARAMS = ("k", "n")
 DELTA_STOP = 0.05  # quantile of the Dirichlet stopping bound (independent of δ)
 NUM_DIRICHLET_SAMPLES = 3000  # M
-
-legs_prune = prune_mask  # the LEGS removal set as a pure, batched function
-
-# Methods whose per-step cost is O(K) (dense state): smaller batches than the rest.
-_DENSE = ("borges_2000", "legs_no_as", "tql")
 
 _TRACES: Counter = Counter()
 
 
 def trace_counts() -> dict[tuple, int]:
-    """How many times the engine traced each (method, static configuration)."""
+    """How many times the engine traced each (method name, static configuration)."""
     return dict(_TRACES)
 
 
@@ -143,6 +115,45 @@ def _next_pose(cdf: jax.Array, u: jax.Array) -> jax.Array:
 
 def _uniforms(keys: jax.Array, n: int) -> jax.Array:
     return jax.vmap(lambda k: jax.random.uniform(k, (n,)))(keys)
+
+
+class EnvState(NamedTuple):
+    """The environment of SPEC §2 for B rollouts: which object and trial (a row of
+    the tables) and the pose the object rests in."""
+
+    ot: jax.Array  # [B] i32 row of the tables
+    pose: jax.Array  # [B] i32 current pose
+
+
+def env_reset(key: jax.Array, tables: Tables, ot: jax.Array) -> EnvState:
+    """The first drop: pose s0 ~ λ. ``key`` [B] (consumed)."""
+    u = _uniforms(key, 1)[:, 0]
+    return EnvState(ot, _next_pose(tables.landing_cdf[ot], u))
+
+
+def env_step(
+    key: jax.Array, tables: Tables, state: EnvState, grasp: jax.Array
+) -> tuple[EnvState, jax.Array, jax.Array]:
+    """One grasp attempt (pure; the environment half of a step, as gymnax's
+    ``step_env``).
+
+    The reward is r = [u_r < p(s, grasp)]; after a success the object is dropped
+    again (s' ~ λ), after a failure it topples (s' ~ topple[s]). A pose with no
+    valid grasp is a failed attempt (not ``live``), whatever ``grasp`` says.
+
+    Args:
+      key: [B] keys (consumed: two uniforms each, u_r and the move's).
+      state: the current :class:`EnvState`.
+      grasp: [B] i32 grasp id to execute at the current pose.
+    Returns:
+      (next state, reward [B] bool, live [B] bool: the pose had a valid grasp).
+    """
+    ot, s = state
+    live = tables.n_valid[ot, s] > 0
+    u = _uniforms(key, 2)
+    reward = live & (u[:, 0] < tables.p[ot, s, grasp])
+    cdf = jnp.where(reward[:, None], tables.landing_cdf[ot], tables.topple_cdf[ot, s])
+    return EnvState(ot, _next_pose(cdf, u[:, 1])), reward, live
 
 
 def _performance(tables: Tables, ot: jax.Array, rec: jax.Array) -> jax.Array:
@@ -289,9 +300,9 @@ def simulate(
     tables: Tables,
     ot: jax.Array,
     rollout_keys: jax.Array,
-    hp: HParams,
+    hp: Any,
     *,
-    method: str,
+    method: Method,
     cfg: Config,
     horizon: int,
     record_every: int = 10,
@@ -307,8 +318,10 @@ def simulate(
       tables: problem data of N (object, trial) pairs (:func:`make_tables`).
       ot: [B] i32 row of ``tables`` of each rollout.
       rollout_keys: [B] typed keys from :func:`legs_jax.keys.rollout_keys`.
-      hp: traced hyperparameters, each [B].
-      method, cfg, horizon, record_every, check_every: static.
+      hp: the method's traced hyperparameters (``method.traced_hparams``), each
+        [B].
+      method: a :class:`legs_jax.methods.base.Method`; cfg, horizon,
+        record_every, check_every: static.
       attempted_variant: also compute the Dirichlet bound over attempted grasps.
       record_active_set: return the active set at each check.
       trajectory: also return per-step ``pose``, ``grasp``, ``reward``, ``live`` and
@@ -324,8 +337,8 @@ def simulate(
       [B], and when checks run ``check_p_lower``, ``check_p_lower_attempted``,
       ``check_true_performance`` [B, C2] (and ``active_set`` [B, C2, P, k]).
     """
-    m: Method = methods_mod.get(method)
-    _TRACES[(method, cfg, horizon, record_every, check_every, ot.shape[0])] += 1
+    m = method
+    _TRACES[(m.name, cfg, horizon, record_every, check_every, ot.shape[0])] += 1
     B = ot.shape[0]
     P = cfg.num_poses
     ctx = Ctx(tables, ot, hp)
@@ -335,9 +348,7 @@ def simulate(
     bi = jnp.arange(B)
 
     ms = m.init(ctx, cfg)
-    s0 = _next_pose(
-        tables.landing_cdf[ot], _uniforms(keys_mod.step_keys(env_k, 0), 1)[:, 0]
-    )
+    s0 = env_reset(keys_mod.step_keys(env_k, 0), tables, ot).pose
     zeros_bp = jnp.zeros((B, P), jnp.int32)
     loop = _Loop(
         s=s0,
@@ -357,8 +368,9 @@ def simulate(
         grasp, slot, rows = m.select(
             c.mstate, ctx, cfg, s, keys_mod.step_keys(met_k, t)
         )
-        u = _uniforms(keys_mod.step_keys(env_k, t), 2)
-        reward = live & (u[:, 0] < tables.p[ot, s, grasp])
+        env, reward, _ = env_step(
+            keys_mod.step_keys(env_k, t), tables, EnvState(ot, s), grasp
+        )
         traj = None
         if trajectory:
             inside = m.candidates(c.mstate, ctx, cfg)[bi, s, grasp]
@@ -385,10 +397,7 @@ def simulate(
                         lambda: rec_s,
                     )
             rec = rec.at[bi, s].set(jnp.where(live, rec_s, rec[bi, s]))
-        cdf = jnp.where(
-            reward[:, None], tables.landing_cdf[ot], tables.topple_cdf[ot, s]
-        )
-        s_next = _next_pose(cdf, u[:, 1])
+        s_next = env.pose
         c = _Loop(
             s=s_next,
             rec=rec,
@@ -429,7 +438,7 @@ def simulate(
             out["check_values_attempted"] = v_att.astype(jnp.float32)
         if record_active_set:
             if m.active_set is None:
-                act = jnp.full((B, P, cfg.k), -1, jnp.int32)
+                act = jnp.full((B, P, _active_width(cfg)), -1, jnp.int32)
             else:
                 act = m.active_set(c.mstate, ctx, cfg)
                 act = jnp.where(c.visited[..., None], act, -1).astype(jnp.int32)
@@ -536,96 +545,21 @@ def _is_int(x: Any) -> bool:
     return isinstance(x, numbers.Integral) and not isinstance(x, bool)
 
 
-def _hparam_grid(
-    method: str, hparams: Mapping[str, Any] | None, K: int
-) -> tuple[int, dict[str, np.ndarray]]:
-    """Validate ``hparams`` and broadcast them to a grid of G points (zipped)."""
-    if method not in METHODS:
-        raise ConfigError(
-            f"unknown method {method!r}; choose one of {', '.join(METHODS)}"
-        )
-    hp = dict(HPARAM_DEFAULTS)
-    if hparams is not None:
-        if not isinstance(hparams, Mapping):
-            raise ConfigError(
-                f"hparams must be a mapping of name -> value, got {hparams!r}"
-            )
-        unknown = sorted(set(hparams) - set(HPARAM_DEFAULTS))
-        if unknown:
-            raise ConfigError(
-                f"unknown hyperparameter(s) {', '.join(map(str, unknown))}; "
-                f"known: {', '.join(HPARAM_DEFAULTS)}"
-            )
-        hp.update(hparams)
-    G = 1
-    values: dict[str, np.ndarray] = {}
-    for name, v in hp.items():
-        if isinstance(v, (str, bytes)):
-            raise ConfigError(f"hyperparameter {name} must be a number, got {v!r}")
-        arr = np.asarray(v, dtype=object)
-        if arr.ndim > 1:
-            raise ConfigError(
-                f"hyperparameter {name} must be a number or a flat sequence, "
-                f"got shape {arr.shape}"
-            )
-        if arr.ndim == 1:
-            if arr.size == 0:
-                raise ConfigError(f"hyperparameter {name} is an empty sequence")
-            if G != 1 and arr.size != G:
-                raise ConfigError(
-                    f"hyperparameter sequences must have equal lengths (a zipped "
-                    f"grid): {name} has {arr.size} values, others {G}"
-                )
-            G = arr.size
-        values[name] = arr.reshape(-1)
-    for name, arr in values.items():
-        for x in arr:
-            if isinstance(x, bool) or not isinstance(x, numbers.Real):
-                raise ConfigError(f"hyperparameter {name} must be a number, got {x!r}")
-            if not math.isfinite(float(x)):
-                raise ConfigError(f"hyperparameter {name} must be finite, got {x!r}")
-    out = {name: np.broadcast_to(arr, (G,)) for name, arr in values.items()}
-    f = {name: out[name].astype(np.float64) for name in TRACED_HPARAMS}
-    for name in ("delta", "gamma"):
-        bad = f[name][(f[name] <= 0) | (f[name] >= 1)]
-        if bad.size:
-            raise ConfigError(f"{name} must lie in (0, 1), got {bad[0]:g}")
-    for name in ("epsilon", "eta"):
-        bad = f[name][(f[name] < 0) | (f[name] > 1)]
-        if bad.size:
-            raise ConfigError(f"{name} must lie in [0, 1], got {bad[0]:g}")
-    for name in ("s", "prior_offset"):
-        bad = f[name][f[name] < 0]
-        if bad.size:
-            raise ConfigError(f"{name} must be >= 0, got {bad[0]:g}")
-    if np.any((f["s"] == 0) & (f["prior_offset"] == 0)):
-        raise ConfigError(
-            "s = 0 with prior_offset = 0 gives Beta(0, 0) for untried grasps; "
-            "make one of them positive"
-        )
-    for name in STATIC_HPARAMS:
-        for x in out[name]:
-            if not (_is_int(x) or (isinstance(x, float) and x.is_integer())) or x < 1:
-                raise ConfigError(f"{name} must be an integer >= 1, got {x!r}")
-    ints = {name: out[name].astype(np.int64) for name in STATIC_HPARAMS}
-    if method == "legs" and np.any(ints["k"] > K):
-        raise ConfigError(
-            f"k = {int(ints['k'].max())} exceeds the K = {K} grasps per pose of the "
-            "problems"
-        )
-    f.update(ints)
-    return G, f
+def _active_width(cfg: Config) -> int:
+    """Slots of a recorded active set: k, or the fixed top size for a method
+    without k."""
+    return dict(cfg.static).get("k", TOP_FIXED)
 
 
-def _default_batch_size(method: str, platform: str, cfg: Config) -> int:
+def _default_batch_size(method: Method, platform: str, cfg: Config) -> int:
     # On CPU a step pays a fixed cost per operation (a few microseconds each,
     # whatever the batch) besides its O(B K) work: at K = 2000, 50 rollouts a
     # device ran 1.07-1.42x faster than 13 (real chunks of 100 rollouts on two
     # devices, BENCHMARKS.md; least for the objects with the most poses, whose
     # rollout state then no longer fits in cache).
     if platform == "cpu":
-        return 64 if method in _DENSE else 512
-    return 2048 if method in _DENSE else 16384
+        return 64 if method.dense else 512
+    return 2048 if method.dense else 16384
 
 
 def _batch_rows(rows_per_device: int, largest: int, quantum: int) -> int:
@@ -641,7 +575,7 @@ def _batch_rows(rows_per_device: int, largest: int, quantum: int) -> int:
 
 @functools.lru_cache(maxsize=64)
 def compiled(
-    method: str,
+    method: Method | str,
     cfg: Config,
     horizon: int,
     record_every: int = 10,
@@ -655,6 +589,7 @@ def compiled(
 ) -> Callable:
     """The jitted :func:`simulate` for one static configuration (cached).
 
+    ``method`` is a :class:`Method` or a name (:func:`legs_jax.methods.resolve`).
     Returns ``f(tables, ot, rollout_keys, hp) -> dict``. With ``grid=True`` the
     function is ``jit(vmap(simulate))`` over a leading axis G of ``rollout_keys``
     [G, B] and of every ``hp`` leaf [G, B]. With several ``devices`` the batch axis
@@ -662,7 +597,7 @@ def compiled(
     """
     fn = functools.partial(
         simulate,
-        method=method,
+        method=methods_mod.resolve(method),
         cfg=cfg,
         horizon=horizon,
         record_every=record_every,
@@ -710,7 +645,7 @@ def _check_int(name: str, value: Any, minimum: int) -> int:
 
 def run(
     batch: ProblemBatch,
-    method: str,
+    method: Method | str,
     *,
     object_ids: Sequence[int],
     trials: Sequence[int] | None = None,
@@ -731,14 +666,15 @@ def run(
 
     Args:
       batch: the problems (:func:`legs_jax.problem.stack`), axes [O, T, P, K].
-      method: one of :data:`METHODS`.
+      method: a :class:`legs_jax.methods.base.Method`, a registered name
+        (:func:`legs_jax.methods.names`) or ``module.path:ATTRIBUTE``.
       object_ids: [O] stable integer id of each object (seeds its rollouts).
       trials: indices into the batch's T axis (default: all).
       num_rollouts: R.
       horizon: H, steps per rollout.
-      hparams: overrides of :data:`HPARAM_DEFAULTS`; a value may be a sequence
-        (all sequences of one length G: a zipped grid, not a product). Grid points
-        share the random numbers of a rollout.
+      hparams: overrides of the method's own defaults (``method.hparams``); a
+        value may be a sequence (all sequences of one length G: a zipped grid, not
+        a product). Grid points share the random numbers of a rollout.
       seed: non-negative integer.
       rollout_offset: rollout r uses key index ``rollout_offset + r`` (to split a
         run into pieces that join into the same results).
@@ -768,7 +704,8 @@ def run(
             f"got {type(batch).__name__}"
         )
     O, T_all, P, K = batch.shape
-    G, hp = _hparam_grid(method, hparams, K)
+    m = methods_mod.resolve(method)
+    G, hp = methods_mod.parse_grid(m, hparams, K)
     obj = np.asarray(object_ids).reshape(-1).tolist() if object_ids is not None else []
     if len(obj) != O:
         raise ConfigError(
@@ -805,7 +742,7 @@ def run(
         raise ConfigError("devices is empty")
     if batch_size is not None:
         batch_size = _check_int("batch_size", batch_size, 1)
-    if record_active_set and len(set(hp["k"].tolist())) > 1:
+    if record_active_set and "k" in hp and len(set(hp["k"].tolist())) > 1:
         raise ConfigError("record_active_set needs a single k, not a grid over k")
 
     # ---------------------------------------------------------------- layout
@@ -832,17 +769,10 @@ def run(
 
     n_dev = len(devices)
     platform = devices[0].platform
-    # Group grid points by their static hyperparameters (k, n).
-    # k and n set shapes only where they are used: a grid over them for another
-    # method runs as one group (one compile).
-    m_obj = methods_mod.get(method)
-    uses_k = method == "legs" or record_active_set
-    ks_ = hp["k"].tolist() if uses_k else [HPARAM_DEFAULTS["k"]] * G
-    ns_ = hp["n"].tolist() if m_obj.prune is not None else [HPARAM_DEFAULTS["n"]] * G
-    statics = list(zip(ks_, ns_, strict=True))
-    groups: dict[tuple[int, int], list[int]] = {}
-    for g, kn in enumerate(statics):
-        groups.setdefault(kn, []).append(g)
+    # Group grid points by the method's static hyperparameters (one compile each).
+    groups: dict[tuple[int, ...], list[int]] = {}
+    for g in range(G):
+        groups.setdefault(tuple(int(hp[n][g]) for n in m.static), []).append(g)
 
     if n_dev == 1:
         put_tables = jax.device_put(Tables(*tables_np), devices[0])
@@ -867,17 +797,18 @@ def run(
     if show and callback is None:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=rows, desc=f"{method}", unit="rollout", leave=False)
+        bar = tqdm(total=rows, desc=m.name, unit="rollout", leave=False)
     done = 0
-    for (k_val, n_val), gs in groups.items():
-        cfg = Config(num_poses=P, num_grasps=K, k=int(k_val), n=int(n_val))
+    for statics, gs in groups.items():
+        static = dict(zip(m.static, statics, strict=True))
+        cfg = Config(num_poses=P, num_grasps=K, **static)
         sel = np.flatnonzero(np.isin(g_i, gs))
-        largest = batch_size or _default_batch_size(method, platform, cfg)
+        largest = batch_size or _default_batch_size(m, platform, cfg)
         quantum = 1 if batch_size or largest <= 64 else 16
         per_dev = _batch_rows(-(-sel.size // n_dev), largest, quantum)
         Bc = per_dev * n_dev
         fn = compiled(
-            method, cfg, H, record_every, check_every,
+            m, cfg, H, record_every, check_every,
             bool(stop_variant_attempted), bool(record_active_set),
             devices=devices, dirichlet=False,
         )  # fmt: skip
@@ -887,11 +818,11 @@ def run(
             idx = sel[start : start + Bc]
             pad = Bc - idx.size
             full = np.concatenate([idx, np.full(pad, idx[0])]) if pad else idx
-            hp_b = HParams(
-                *(
-                    jnp.asarray(hp[name][g_i[full]], jnp.float32)
-                    for name in TRACED_HPARAMS
-                )
+            hp_b = m.traced_hparams(
+                **{
+                    name: jnp.asarray(hp[name][g_i[full]], jnp.float32)
+                    for name in m.traced
+                }
             )
             args = (jnp.asarray(ot_rows[full]), key_rows[full], hp_b)
             if n_dev > 1:
@@ -912,6 +843,7 @@ def run(
         bar.close()
 
     shape = (G, O, T, R)
+    width = int(hp["k"][0]) if "k" in hp else TOP_FIXED  # active-set slots
 
     def get(name, dtype=None, extra=()):
         if name not in results:
@@ -932,9 +864,7 @@ def run(
         check_p_lower_attempted=get("check_p_lower_attempted", np.float32, (C2,)),
         check_true_performance=get("check_true_performance", np.float32, (C2,)),
         active_set=(
-            get("active_set", np.int32, (C2, P, int(hp["k"][0])))
-            if record_active_set
-            else None
+            get("active_set", np.int32, (C2, P, width)) if record_active_set else None
         ),
     )
 

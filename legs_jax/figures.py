@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+import sweeps
 from legs_jax import analysis as an
 from legs_jax import report as rp
 
@@ -48,23 +49,13 @@ __all__ = [
     "main",
 ]
 
-EXPERIMENTS = ("main", "case_study", "early_stopping", "prior_strength", "confidence")
-CASE_OBJECTS = ("climbing_hold", "C3", "F6", "turbine_housing")
+EXPERIMENTS = sweeps.EXPERIMENTS
+CASE_OBJECTS = tuple(sweeps.get("case_study").OBJECTS)
 # None: the case-study object whose LEGS active set changes most (the most
 # distinct members on one pose), which shows the pruning best.
 ACTIVE_OBJECT: str | None = None
 DEFAULT_RHO = tuple(round(0.05 * i, 2) for i in range(1, 20))
 
-STYLE = {
-    ("dexnet", ""): dict(color="#7f7f7f", ls="--", lw=1.6),
-    ("k100_ub", ""): dict(color="#000000", ls=":", lw=1.6),
-    ("tql", ""): dict(color="#9467bd", ls="-", lw=1.6),
-    ("borges_100", ""): dict(color="#ff7f0e", ls="-", lw=1.6),
-    ("borges_2000", ""): dict(color="#2ca02c", ls="-", lw=1.6),
-    ("borges_2000", "orig_prior"): dict(color="#98df8a", ls="-.", lw=1.6),
-    ("legs_no_as", ""): dict(color="#1f77b4", ls="-", lw=1.6),
-    ("legs", ""): dict(color="#d62728", ls="-", lw=2.4),
-}
 _PNG_META = {"Software": None}
 _DPI = 150
 
@@ -232,7 +223,9 @@ def _save(fig, path: Path) -> Path:
 
 
 def _style(method: str, variant: str) -> dict[str, Any]:
-    return dict(STYLE.get((method, variant), dict(color="#8c564b", ls="-", lw=1.4)))
+    """The arm's declared line style (its method's, or its variant's)."""
+    style = an.arm_declaration(method, variant).get("style")
+    return dict(style or dict(color="#8c564b", ls="-", lw=1.4))
 
 
 def _note(ax, text: str) -> None:
@@ -540,7 +533,7 @@ def _early_stopping_checks(res: Results) -> tuple[pd.DataFrame, str, int]:
             f"{res.path('main', 'checks')} to fall back on (run `python -m "
             "legs_jax.sweep --experiment early_stopping`)"
         )
-    checks = an.select_arm(checks, "legs", "")
+    checks = an.select_arm(checks, sweeps.get("early_stopping").CHECK_METHODS[0], "")
     if checks.empty:
         raise MissingResults(f"{res.path(exp, 'checks')} has no LEGS checks")
     return checks, exp, res.horizon(exp)
@@ -783,7 +776,8 @@ def active_set_figure(
     k_text = "k"
     if res.has("case_study", "runs"):
         runs = res.table("case_study", "runs")
-        ks = runs.loc[runs["method"] == "legs", "k"].unique() if "k" in runs else []
+        shown = sweeps.get("case_study").ACTIVE_SET_METHODS[0]
+        ks = runs.loc[runs["method"] == shown, "k"].unique() if "k" in runs else []
         if len(ks) == 1:
             k_text = str(int(ks[0]))
     fig.suptitle(
@@ -846,7 +840,8 @@ def early_stopping_tables(info: dict[str, Any], out: Path) -> list[Path]:
 def appendix_tables(
     res: Results, out: Path, experiment: str, param: str
 ) -> tuple[list[Path], dict[str, Any]]:
-    runs = an.select_arm(res.table(experiment, "runs"), "legs", "", vary=(param,))
+    method = sweeps.get(experiment).ARMS[0][0]  # the one method of the sweep
+    runs = an.select_arm(res.table(experiment, "runs"), method, "", vary=(param,))
     if runs.empty:
         raise MissingResults(f"{res.path(experiment, 'runs')} has no LEGS runs")
     table = an.sweep_table(runs, param)
@@ -931,8 +926,12 @@ def generate(
         )
         written.append(path)
 
+    def step_problem_model():
+        ctx["problem_model"] = problem_model_context(results)
+
     steps = [
         ("Table I, wins, per-object gaps", step_main),
+        ("problem model before and after", step_problem_model),
         ("Fig. 3 case study", step_fig3),
         ("Fig. 4 early stopping", step_fig4),
         ("appendix: prior strength", step_prior),
@@ -961,6 +960,41 @@ def generate(
     rp.write_text(report_path, rp.build_report(ctx))
     written.append(report_path)
     return written, problems
+
+
+def _set_summary(path: Path) -> pd.DataFrame | None:
+    """Per set: share of grasps with p >= 0.5, λ-weighted p*, corr(p, q) and the
+    prior-only gaps, means over the objects of ``summary.csv`` (None if absent)."""
+    if not path.is_file():
+        return None
+    d = pd.read_csv(path)
+    return d.groupby("set").agg(
+        objects=("object", "count"),
+        frac_good=("frac_p_ge_0.5", "mean"),
+        p_star=("p_star", "mean"),
+        corr=("prior_truth_corr", "mean"),
+        dexnet_gap=("dexnet_gap", "mean"),
+        k100_ub_gap=("k100_ub_gap", "mean"),
+    )
+
+
+def problem_model_context(results: Path) -> dict[str, Any] | None:
+    """The problem model now (``precompute/summary.csv``) and before it changed
+    (``previous/``: copies of the earlier results, see its README), for the
+    report's before/after section; None without ``previous/``."""
+    prev = Path(results) / "previous"
+    if not prev.is_dir():
+        return None
+    out: dict[str, Any] = {
+        "sets_before": _set_summary(prev / "summary.csv"),
+        "sets_after": _set_summary(Path(results) / "precompute" / "summary.csv"),
+    }
+    for name in ("table1", "wins", "early_stopping"):
+        f = prev / f"{name}.csv"
+        out[f"{name}_before"] = (
+            pd.read_csv(f, keep_default_na=False) if f.is_file() else None
+        )
+    return out
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -15,7 +15,6 @@ import dataclasses
 import io
 import json
 import os
-import tempfile
 import zipfile
 from collections.abc import Sequence
 from pathlib import Path
@@ -23,9 +22,10 @@ from typing import Any
 
 import numpy as np
 
-from legs_jax._files import public_mode
+from legs_jax._files import atomic_write
 
 __all__ = [
+    "peek",
     "FORMAT_VERSION",
     "Problem",
     "ProblemBatch",
@@ -245,25 +245,44 @@ def save(problem: Problem, path: str | os.PathLike) -> Path:
     }
     text = json.dumps(header, sort_keys=True)
     members.append(("meta_json.npy", _npy_bytes(np.array(text))))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with (
-            os.fdopen(fd, "wb") as fh,
-            zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED) as z,
-        ):
+
+    def write(fh) -> None:
+        with zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED) as z:
             for name, data in members:
                 info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
                 info.compress_type = zipfile.ZIP_DEFLATED
                 info.external_attr = 0o644 << 16
                 z.writestr(info, data, compresslevel=6)
-        public_mode(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+
+    return atomic_write(path, write)
+
+
+def peek(path: str | os.PathLike) -> dict[str, Any]:
+    """The header of a problem file without loading its arrays: ``name``,
+    ``meta`` and ``shapes`` (field -> array shape, for ``landing`` and
+    ``robustness``). Raises an ``OSError``, ``ValueError`` or ``KeyError`` for an
+    unreadable file (:func:`load` says what is wrong with it)."""
+    shapes = {}
+    with zipfile.ZipFile(path) as z:
+        for field in ("landing", "robustness"):
+            with z.open(field + ".npy") as fh:
+                version = np.lib.format.read_magic(fh)
+                if version == (1, 0):
+                    shape, _, _ = np.lib.format.read_array_header_1_0(fh)
+                elif version == (2, 0):
+                    shape, _, _ = np.lib.format.read_array_header_2_0(fh)
+                else:
+                    with z.open(field + ".npy") as full:
+                        shape = np.lib.format.read_array(full).shape
+                shapes[field] = tuple(shape)
+        raw = z.read("meta_json.npy")
+    arr = np.load(io.BytesIO(raw), allow_pickle=False)
+    header = json.loads(str(arr.reshape(-1)[0]))
+    return {
+        "name": header.get("name"),
+        "meta": dict(header.get("meta", {})),
+        "shapes": shapes,
+    }
 
 
 def load(path: str | os.PathLike) -> Problem:

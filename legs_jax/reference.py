@@ -79,12 +79,17 @@ Dirichlet stopping check (SPEC §5).
   (fixed, independent of the pruning δ) of M = 3000 samples, linear
   interpolation (``np.quantile``); both variants use the same samples.
 
+Methods.
+  Each method (:mod:`legs_jax.methods`) names its NumPy twin in its declaration
+  (``Method.reference``, one of the classes below or the user's own); this
+  module's loop, environment and checks are shared by all of them.
+
 Validation.
-  :func:`check_hparams` raises :class:`legs_jax.errors.ConfigError` for an unknown
-  method or hyperparameter name, δ or γ outside (0, 1), ε or η outside [0, 1],
-  s < 0, prior_offset < 0, s = prior_offset = 0, k or n not an integer ≥ 1, and
-  k > K for LEGS (the only method that uses k). BORGES (K=100) and the K100 upper
-  bound always use the top 100 (or every valid grasp when a pose has fewer).
+  :func:`check_hparams` applies the method's own declaration, as the engine does
+  (:func:`legs_jax.methods.parse_grid`): an unknown method or hyperparameter, a
+  value outside its declared range, s = prior_offset = 0, and k > K for LEGS raise
+  :class:`legs_jax.errors.ConfigError`. BORGES (K=100) and the K100 upper bound
+  always use the top 100 (or every valid grasp when a pose has fewer).
 """
 
 from __future__ import annotations
@@ -101,11 +106,16 @@ from legs_jax.problem import Problem
 
 __all__ = [
     "DELTA_STOP",
-    "HPARAM_DEFAULTS",
-    "METHODS",
     "NUM_DIRICHLET_SAMPLES",
     "TOP_FIXED",
+    "BetaMethod",
+    "Borges",
+    "Fixed",
+    "Legs",
+    "LegsNoAS",
+    "ReferenceMethod",
     "RunResult",
+    "TQL",
     "check_hparams",
     "constant_gap",
     "constant_policy",
@@ -113,23 +123,13 @@ __all__ = [
     "gap",
     "legs_prune",
     "performance",
+    "prior_choice",
     "rollout_rng",
     "run",
     "run_rollout",
+    "top_truth_choice",
 ]
 
-METHODS = (
-    "dexnet",
-    "k100_ub",
-    "borges_100",
-    "borges_2000",
-    "legs_no_as",
-    "legs",
-    "tql",
-)
-HPARAM_DEFAULTS: dict[str, float | int] = dict(
-    s=1.0, prior_offset=1.0, delta=0.05, gamma=0.2, epsilon=0.1, eta=0.1, k=100, n=100
-)
 TOP_FIXED = 100  # candidate set size of BORGES (K=100) and the K100 upper bound
 DELTA_STOP = 0.05  # quantile of the Dirichlet stopping bound
 NUM_DIRICHLET_SAMPLES = 3000  # M
@@ -156,74 +156,25 @@ class RunResult(NamedTuple):
 # ---------------------------------------------------------------- validation
 
 
-def _as_float(name: str, value: Any) -> float:
-    if isinstance(value, (str, bytes)) or np.ndim(value) != 0:
-        raise ConfigError(
-            f"hyperparameter '{name}' must be one number here, got {value!r} "
-            "(the reference runs one configuration at a time)"
-        )
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(
-            f"hyperparameter '{name}' must be a number, got {value!r}"
-        ) from None
-    if not np.isfinite(x):
-        raise ConfigError(f"hyperparameter '{name}' must be finite, got {value!r}")
-    return x
-
-
-def _as_int(name: str, value: Any, minimum: int) -> int:
-    x = _as_float(name, value)
-    if x != int(x) or x < minimum:
-        raise ConfigError(
-            f"hyperparameter '{name}' must be an integer >= {minimum}, got {value!r}"
-        )
-    return int(x)
-
-
 def check_hparams(
-    problem: Problem, method: str, hparams: Mapping[str, Any] | None = None
+    problem: Problem, method: Any, hparams: Mapping[str, Any] | None = None
 ) -> dict[str, float | int]:
-    """Complete ``hparams`` with the defaults and validate them for ``method``.
+    """Complete ``hparams`` with the method's defaults and validate them (the
+    engine's rules, :func:`legs_jax.methods.parse_grid`), one value each.
 
     Raises :class:`ConfigError` with a one-line message (see the module docstring).
     """
-    if method not in METHODS:
-        raise ConfigError(f"unknown method {method!r}; choose one of {METHODS}")
-    hp: dict[str, Any] = dict(HPARAM_DEFAULTS)
-    if hparams is not None:
-        unknown = sorted(set(hparams) - set(HPARAM_DEFAULTS))
-        if unknown:
+    from legs_jax import methods
+
+    m = methods.resolve(method)
+    for name, value in (hparams or {}).items():
+        if isinstance(value, (str, bytes)) or np.ndim(value) != 0:
             raise ConfigError(
-                f"unknown hyperparameter(s) {unknown}; known: {sorted(HPARAM_DEFAULTS)}"
+                f"hyperparameter '{name}' must be one number here, got {value!r} "
+                "(the reference runs one configuration at a time)"
             )
-        hp.update(hparams)
-    out: dict[str, float | int] = {}
-    for name in ("s", "prior_offset", "delta", "gamma", "epsilon", "eta"):
-        out[name] = _as_float(name, hp[name])
-    for name in ("delta", "gamma"):
-        if not 0.0 < out[name] < 1.0:
-            raise ConfigError(f"{name} must lie in (0, 1), got {hp[name]!r}")
-    for name in ("epsilon", "eta"):
-        if not 0.0 <= out[name] <= 1.0:
-            raise ConfigError(f"{name} must lie in [0, 1], got {hp[name]!r}")
-    for name in ("s", "prior_offset"):
-        if out[name] < 0.0:
-            raise ConfigError(f"{name} must be >= 0, got {hp[name]!r}")
-    if out["s"] == 0.0 and out["prior_offset"] == 0.0:
-        raise ConfigError(
-            "s = 0 with prior_offset = 0 gives Beta(0, 0) for untried grasps; "
-            "make one of them positive"
-        )
-    out["k"] = _as_int("k", hp["k"], 1)
-    out["n"] = _as_int("n", hp["n"], 1)
-    if method == "legs" and out["k"] > problem.num_grasps:
-        raise ConfigError(
-            f"k = {out['k']} exceeds the K = {problem.num_grasps} grasps per pose "
-            f"of problem '{problem.name}'"
-        )
-    return out
+    _, grid = methods.parse_grid(m, hparams, problem.num_grasps)
+    return {name: v[0].item() for name, v in grid.items()}
 
 
 def _check_run_args(
@@ -297,20 +248,33 @@ def _masked_argmax(score: np.ndarray, mask: np.ndarray) -> int:
     return int(idx[np.argmax(score[idx])]) if idx.size else -1
 
 
-def constant_policy(problem: Problem, method: str, trial: int) -> np.ndarray:
-    """[P] fixed grasp per pose of the Dex-Net or K100 upper bound row."""
+def prior_choice(problem: Problem, trial: int) -> np.ndarray:
+    """[P] the grasp of highest q of each pose (Dex-Net's), -1 with none."""
+    _, _, q, valid = _trial_arrays(problem, trial)
+    return np.array([_masked_argmax(q[s], valid[s]) for s in range(len(q))])
+
+
+def top_truth_choice(problem: Problem, trial: int, size: int) -> np.ndarray:
+    """[P] the grasp of highest p among the top ``size`` by q (the K100 upper
+    bound's), -1 with none."""
     _, p, q, valid = _trial_arrays(problem, trial)
-    if method == "dexnet":
-        cand, score = valid, q  # argmax q over all K
-    elif method == "k100_ub":
-        cand, score = _top_mask(q, valid, TOP_FIXED), p  # argmax p over top-100
-    else:
-        raise ConfigError(f"constant rows are 'dexnet' and 'k100_ub', got {method!r}")
-    return np.array([_masked_argmax(score[s], cand[s]) for s in range(len(p))])
+    cand = _top_mask(q, valid, size)
+    return np.array([_masked_argmax(p[s], cand[s]) for s in range(len(p))])
 
 
-def constant_gap(problem: Problem, method: str, trial: int) -> float:
-    """The constant gap of the Dex-Net or K100 upper bound row (SPEC §5)."""
+def constant_policy(problem: Problem, method: Any, trial: int) -> np.ndarray:
+    """[P] fixed grasp per pose of a constant row (a method that does not learn)."""
+    from legs_jax import methods
+
+    m = methods.resolve(method)
+    twin = m.reference(problem, trial, m.defaults()) if m.reference else None
+    if m.learns or not isinstance(twin, Fixed):
+        raise ConfigError(f"{m.name} is not a constant row")
+    return twin.choice.copy()
+
+
+def constant_gap(problem: Problem, method: Any, trial: int) -> float:
+    """The constant gap of a constant row (Dex-Net, K100 upper bound; SPEC §5)."""
     return gap(problem, trial, constant_policy(problem, method, trial))
 
 
@@ -425,7 +389,7 @@ class _Environment:
 # ---------------------------------------------------------------- methods
 
 
-class _Method:
+class ReferenceMethod:
     """Per-rollout state of one method on one trial's reservoir.
 
     ``cand`` [P, K] is the method's current candidate set of each pose;
@@ -484,7 +448,7 @@ class _Method:
         return np.full((self.q.shape[0], k), -1)
 
 
-class _BetaMethod(_Method):
+class BetaMethod(ReferenceMethod):
     """Thompson sampling on the Beta posterior of SPEC §3 over ``cand``."""
 
     def __init__(self, problem: Problem, trial: int, hp: Mapping[str, Any]):
@@ -520,14 +484,15 @@ class _BetaMethod(_Method):
         return int(idx[np.argmax(self.q[s, idx])])  # no data yet: argmax prior
 
 
-class _Fixed(_BetaMethod):
-    """Dex-Net (argmax q over all K) or the K100 upper bound (argmax p, top-100)."""
+class Fixed(BetaMethod):
+    """A constant row: ``choice`` [P] in every pose; its Beta posterior over the
+    candidates (all valid grasps, or the top ``top`` by q) serves the check."""
 
-    def __init__(self, problem, trial, hp, method: str):
+    def __init__(self, problem, trial, hp, choice: np.ndarray, top: int | None = None):
         super().__init__(problem, trial, hp)
-        if method == "k100_ub":
-            self.cand = _top_mask(self.q, self.valid, TOP_FIXED)
-        self.choice = constant_policy(problem, method, trial)  # [P]
+        if top is not None:
+            self.cand = _top_mask(self.q, self.valid, top)
+        self.choice = np.asarray(choice)  # [P]
 
     def select(self, s: int, rng: np.random.Generator) -> int:
         return int(self.choice[s])
@@ -536,7 +501,7 @@ class _Fixed(_BetaMethod):
         return int(self.choice[s])
 
 
-class _Borges(_BetaMethod):
+class Borges(BetaMethod):
     """BORGES: Thompson sampling over a fixed candidate set (top-100 or all K)."""
 
     def __init__(self, problem, trial, hp, top: int | None):
@@ -545,27 +510,26 @@ class _Borges(_BetaMethod):
             self.cand = _top_mask(self.q, self.valid, top)
 
 
-class _LegsNoAS(_BetaMethod):
+class LegsNoAS(BetaMethod):
     """LEGS(-AS): Thompson sampling over all K minus the removed grasps."""
+
+    def _prune_set(self, s: int) -> np.ndarray:
+        """[K] bool, the LEGS removal set of pose s (:func:`legs_prune`)."""
+        hp = self.hp
+        args = (self.alpha[s], self.beta[s], self.attempted[s], self.cand[s])
+        return legs_prune(*args, hp["delta"], hp["gamma"])
 
     def after_step(self, t: int, s: int) -> None:
         if t % self.hp["n"] != 0:
             return
-        removed = legs_prune(
-            self.alpha[s],
-            self.beta[s],
-            self.attempted[s],
-            self.cand[s],
-            self.hp["delta"],
-            self.hp["gamma"],
-        )
+        removed = self._prune_set(s)
         self.cand[s] &= ~removed
         self.replacements += int(removed.sum())
         self.removal_log += [(t, s, int(g)) for g in np.flatnonzero(removed)]
         self._dirty[s] = True
 
 
-class _Legs(_BetaMethod):
+class Legs(LegsNoAS):
     """LEGS: Thompson sampling over an active set of k slots, pruned and refilled."""
 
     def __init__(self, problem, trial, hp):
@@ -585,14 +549,7 @@ class _Legs(_BetaMethod):
     def after_step(self, t: int, s: int) -> None:
         if t % self.hp["n"] != 0:
             return
-        removed = legs_prune(
-            self.alpha[s],
-            self.beta[s],
-            self.attempted[s],
-            self.cand[s],
-            self.hp["delta"],
-            self.hp["gamma"],
-        )
+        removed = self._prune_set(s)
         for j in range(self.slots.shape[1]):  # slot order
             g = self.slots[s, j]
             if g < 0 or not removed[g]:
@@ -613,7 +570,7 @@ class _Legs(_BetaMethod):
         return np.where(self.visited[:, None], self.slots, -1)
 
 
-class _TQL(_Method):
+class TQL(ReferenceMethod):
     """Tabular one-step Q-learning, ε-greedy: Q ← Q + η (r − Q), Q₀ = q."""
 
     def __init__(self, problem, trial, hp):
@@ -635,22 +592,6 @@ class _TQL(_Method):
 
     def _recommend_pose(self, s: int) -> int:
         return _masked_argmax(self.Q[s], self.cand[s])
-
-
-def _make_method(problem: Problem, trial: int, method: str, hp) -> _Method:
-    if method in ("dexnet", "k100_ub"):
-        return _Fixed(problem, trial, hp, method)
-    if method == "borges_100":
-        return _Borges(problem, trial, hp, TOP_FIXED)
-    if method == "borges_2000":
-        return _Borges(problem, trial, hp, None)
-    if method == "legs_no_as":
-        return _LegsNoAS(problem, trial, hp)
-    if method == "legs":
-        return _Legs(problem, trial, hp)
-    if method == "tql":
-        return _TQL(problem, trial, hp)
-    raise ConfigError(f"unknown method {method!r}; choose one of {METHODS}")
 
 
 # ---------------------------------------------------------------- rollouts
@@ -691,6 +632,7 @@ def run_rollout(
     """
     _check_run_args(problem, horizon, record_every, check_every)
     hp = check_hparams(problem, method, hparams)
+    spec = _method(method)
     if not 0 <= trial < problem.num_trials:
         raise ConfigError(
             f"trial {trial} out of range: problem '{problem.name}' has "
@@ -703,7 +645,7 @@ def run_rollout(
     u_move = env_rng.random(H)
 
     env = _Environment(problem)
-    m = _make_method(problem, trial, method, hp)
+    m = spec.reference(problem, trial, hp)
     lam, p, _, valid = _trial_arrays(problem, trial)
     has_grasp = valid.any(axis=1)  # [P]
     total_star = float(np.sum(lam * np.where(valid, p, 0.0).max(axis=1)))
@@ -718,7 +660,8 @@ def run_rollout(
     gap_curve = np.zeros(curve_steps.size)
     p_lower = np.zeros((2, check_steps.size))
     true_perf = np.zeros(check_steps.size)
-    active = np.full((check_steps.size, P, hp["k"]), -1) if record_active_set else None
+    width = int(hp.get("k", TOP_FIXED))  # slots of the active set
+    active = np.full((check_steps.size, P, width), -1) if record_active_set else None
     poses = np.zeros(H, int)
     actions = np.full(H, -1)
     rewards = np.zeros(H, bool)
@@ -763,7 +706,7 @@ def run_rollout(
             )
             true_perf[i_check] = perf(m.recommend())
             if active is not None:
-                active[i_check] = m.active_slots(hp["k"])
+                active[i_check] = m.active_slots(width)
             i_check += 1
 
     final_policy = m.recommend()
@@ -786,6 +729,17 @@ def run_rollout(
         drop_counts=drops,
         observed=observed,
     )
+
+
+def _method(method: Any):
+    """The registered method (a name, ``module:ATTRIBUTE`` or a Method) that has
+    a NumPy twin."""
+    from legs_jax import methods
+
+    m = methods.resolve(method)
+    if m.reference is None:
+        raise ConfigError(f"method {m.name} has no NumPy reference")
+    return m
 
 
 def rollout_rng(seed: int, trial: int, rollout: int) -> np.random.Generator:
@@ -811,7 +765,7 @@ def run(
 
     Args:
       trials: trial indices (default: all T).
-      hparams: overrides of :data:`HPARAM_DEFAULTS` (one value each).
+      hparams: overrides of the method's defaults (one value each).
       seed: non-negative integer; rollout r of trial t uses ``rollout_rng(seed,
         t, r)``.
       progress: show a progress bar over the rollouts.
@@ -822,6 +776,7 @@ def run(
     """
     _check_run_args(problem, horizon, record_every, check_every)
     hp = check_hparams(problem, method, hparams)
+    method = _method(method).name
     trials = list(range(problem.num_trials)) if trials is None else list(trials)
     if not trials:
         raise ConfigError("trials is empty")

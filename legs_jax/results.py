@@ -47,7 +47,6 @@ import json
 import os
 import shutil
 import socket
-import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -57,7 +56,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from legs_jax._files import public_mode
+from legs_jax._files import atomic_write
 
 __all__ = [
     "CHUNK_META",
@@ -71,6 +70,7 @@ __all__ = [
     "merge_chunks",
     "read_chunk_meta",
     "sha256_file",
+    "verify_chunk",
     "write_chunk",
 ]
 
@@ -114,37 +114,16 @@ def sha256_file(path: str | os.PathLike) -> str:
 # -------------------------------------------------------------------- atomic I/O
 def atomic_write_parquet(df: pd.DataFrame, path: str | os.PathLike) -> Path:
     """Write ``df`` (without its index) to ``path`` through a temporary file."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     table = pa.Table.from_pandas(df, preserve_index=False)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        pq.write_table(table, tmp)
-        public_mode(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    return atomic_write(path, lambda fh: pq.write_table(table, fh))
 
 
 def atomic_write_json(obj: Any, path: str | os.PathLike) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(_canonical(obj), fh, indent=1, sort_keys=True)
-            fh.write("\n")
-        public_mode(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    def write(fh) -> None:
+        json.dump(_canonical(obj), fh, indent=1, sort_keys=True)
+        fh.write("\n")
+
+    return atomic_write(path, write, text=True)
 
 
 # -------------------------------------------------------------------- chunk tables
@@ -230,12 +209,24 @@ def _label_columns(ctx: ChunkContext, ix: dict[str, np.ndarray]) -> dict[str, An
 
 
 def _hparam_columns(ctx: ChunkContext, g: np.ndarray) -> dict[str, np.ndarray]:
+    """``HPARAM_COLUMNS``, then any other hyperparameter of the method (a user's
+    method's own, float64) in name order."""
+    extra = sorted(set(ctx.grid[0]) - set(HPARAM_COLUMNS))
     cols = {}
-    for c in HPARAM_COLUMNS:
+    for c in (*HPARAM_COLUMNS, *extra):
         dtype = np.int64 if c in _INT_HPARAMS else np.float64
         vals = np.array([gp[c] for gp in ctx.grid], dtype=dtype)
         cols[c] = vals[g]
     return cols
+
+
+def _with_extra(columns: Sequence[str], df: pd.DataFrame) -> list[str]:
+    """``columns`` with the extra hyperparameter columns of ``df`` (those of a
+    user's method, :func:`_hparam_columns`) after ``HPARAM_COLUMNS``."""
+    known = {*_RUN_COLUMNS, *_CHECK_COLUMNS, *_INTERNAL_COLUMNS}
+    extra = sorted(c for c in df.columns if c not in known)
+    at = list(columns).index(HPARAM_COLUMNS[-1]) + 1
+    return [*columns[:at], *extra, *columns[at:]]
 
 
 def _frame(cols: dict[str, Any], n: int) -> pd.DataFrame:
@@ -376,7 +367,8 @@ def write_chunk(
     meta: Mapping[str, Any],
 ) -> bool:
     """Write a finished chunk atomically: tables and ``chunk.json`` into a temporary
-    folder, then rename it to ``chunks_dir/chunk_id``.
+    folder, then rename it to ``chunks_dir/chunk_id``. ``chunk.json`` records the
+    SHA-256 of every table file (``files``), which :func:`verify_chunk` checks.
 
     Returns False (and writes nothing) when another process finished the same
     chunk first.
@@ -389,9 +381,11 @@ def write_chunk(
         shutil.rmtree(tmp)
     tmp.mkdir()
     try:
+        files = {}
         for name, df in tables.items():
             atomic_write_parquet(df, tmp / f"{name}.parquet")
-        atomic_write_json(dict(meta), tmp / CHUNK_META)
+            files[f"{name}.parquet"] = sha256_file(tmp / f"{name}.parquet")
+        atomic_write_json({**meta, "files": files}, tmp / CHUNK_META)
         for f in tmp.iterdir():
             with open(f, "rb") as fh:
                 os.fsync(fh.fileno())
@@ -411,6 +405,33 @@ def write_chunk(
 
 def chunk_done(chunks_dir: str | os.PathLike, chunk_id: str) -> bool:
     return (Path(chunks_dir) / chunk_id / CHUNK_META).is_file()
+
+
+def verify_chunk(chunks_dir: str | os.PathLike, chunk_id: str) -> str | None:
+    """What is wrong with a finished chunk, or None when it is whole: its
+    ``chunk.json`` must parse and every table file it lists must have the SHA-256
+    it records (a chunk written before checksums were recorded must at least have
+    readable parquet files)."""
+    d = Path(chunks_dir) / chunk_id
+    try:
+        meta = read_chunk_meta(chunks_dir, chunk_id)
+    except (OSError, ValueError):
+        return f"{CHUNK_META} is unreadable"
+    files = meta.get("files")
+    if not isinstance(files, dict):
+        for f in sorted(d.glob("*.parquet")):
+            try:
+                pq.read_metadata(f)
+            except Exception:  # noqa: BLE001 - any failure to read is damage
+                return f"{f.name} is unreadable"
+        return None if (d / "runs.parquet").is_file() else "runs.parquet is missing"
+    for name, digest in sorted(files.items()):
+        f = d / name
+        if not f.is_file():
+            return f"{name} is missing"
+        if sha256_file(f) != digest:
+            return f"{name} does not match its SHA-256 in {CHUNK_META}"
+    return None
 
 
 def read_chunk_meta(chunks_dir: str | os.PathLike, chunk_id: str) -> dict[str, Any]:
@@ -447,12 +468,9 @@ def _pid_alive(pid: int) -> bool:
 
 
 # -------------------------------------------------------------------------- merge
+_ARM_COLUMNS = ["experiment", "set", "object", "method", "variant"]
 _RUN_COLUMNS = [
-    "experiment",
-    "set",
-    "object",
-    "method",
-    "variant",
+    *_ARM_COLUMNS,
     "trial",
     "rollout",
     "seed",
@@ -464,13 +482,9 @@ _RUN_COLUMNS = [
     "distinct_grasps",
     "replacements",
 ]
-_GROUP_COLUMNS = ["experiment", "set", "object", "method", "variant", *HPARAM_COLUMNS]
+_GROUP_COLUMNS = [*_ARM_COLUMNS, *HPARAM_COLUMNS]
 _CHECK_COLUMNS = [
-    "experiment",
-    "set",
-    "object",
-    "method",
-    "variant",
+    *_ARM_COLUMNS,
     "trial",
     "rollout",
     *HPARAM_COLUMNS,
@@ -479,6 +493,10 @@ _CHECK_COLUMNS = [
     "p_lower_attempted",
     "true_performance",
 ]
+
+
+# Columns of the chunk tables that the merged tables drop or keep elsewhere.
+_INTERNAL_COLUMNS = ("grid_index", "gap_curve")
 
 
 def _read(path: Path) -> pd.DataFrame:
@@ -536,12 +554,17 @@ def merge_chunks(
 
     runs = order(pd.concat(parts["runs"], ignore_index=True), ["trial", "rollout"])
     curves = _aggregate_curves(runs, np.asarray(curve_steps or [], np.int64))
-    out = {"runs": runs[_RUN_COLUMNS].reset_index(drop=True), "curves": curves}
+    out = {
+        "runs": runs[_with_extra(_RUN_COLUMNS, runs)].reset_index(drop=True),
+        "curves": curves,
+    }
     if parts["checks"]:
         checks = order(
             pd.concat(parts["checks"], ignore_index=True), ["trial", "rollout", "step"]
         )
-        out["checks"] = checks[_CHECK_COLUMNS].reset_index(drop=True)
+        out["checks"] = checks[_with_extra(_CHECK_COLUMNS, checks)].reset_index(
+            drop=True
+        )
     else:
         out["checks"] = pd.DataFrame({c: [] for c in _CHECK_COLUMNS})
     if parts["active_set"]:
@@ -551,10 +574,13 @@ def merge_chunks(
 
 
 def _aggregate_curves(runs: pd.DataFrame, steps: np.ndarray) -> pd.DataFrame:
-    columns = [*_GROUP_COLUMNS, "step", "gap_mean", "gap_se", "n_runs"]
+    group = _with_extra(_GROUP_COLUMNS, runs)
+    columns = [*group, "step", "gap_mean", "gap_se", "n_runs"]
     if runs.empty:
         return pd.DataFrame({c: [] for c in columns})
-    keys = runs[_GROUP_COLUMNS + ["grid_index"]]
+    # The arm and its grid point fix every hyperparameter (NaN in a column that
+    # only a user's method has would never compare equal).
+    keys = runs[[*_ARM_COLUMNS, "grid_index"]]
     # Runs are sorted, so each group is one contiguous block.
     change = np.ones(len(runs), bool)
     change[1:] = (keys.iloc[1:].to_numpy() != keys.iloc[:-1].to_numpy()).any(axis=1)
@@ -571,7 +597,7 @@ def _aggregate_curves(runs: pd.DataFrame, steps: np.ndarray) -> pd.DataFrame:
             if n > 1
             else np.full_like(mean, np.nan)
         )
-        head = {c: runs[c].iloc[a] for c in _GROUP_COLUMNS}
+        head = {c: runs[c].iloc[a] for c in group}
         frame = pd.DataFrame({c: [v] * len(steps) for c, v in head.items()})
         frame["step"] = steps
         frame["gap_mean"] = mean

@@ -45,7 +45,6 @@ __all__ = [
     "beta_ppf",
     "beta_rows",
     "betainc",
-    "dirichlet_lower_bound",
     "gamma_bins",
     "gamma_rows",
     "key_words",
@@ -944,63 +943,6 @@ def beta_ppf(q: jax.Array | float, a: jax.Array, b: jax.Array) -> jax.Array:
     x = jnp.where(qc <= 0.0, 0.0, jnp.where(qc >= 1.0, 1.0, x))
     x = jnp.where(jnp.isnan(q), jnp.nan, x)
     return x.reshape(shape)
-
-
-# --------------------------------------------------------------------------------------
-# Dirichlet early-stopping bound
-# --------------------------------------------------------------------------------------
-
-
-def dirichlet_lower_bound(
-    keys: jax.Array,
-    counts: jax.Array,
-    observed: jax.Array,
-    values: jax.Array,
-    delta: jax.Array | float,
-    num_samples: int = 3000,
-) -> jax.Array:
-    """The δ-quantile of p' = Σ_s v_s λ'_s with λ' ~ Dir(c_s + 1 observed, 1 unseen).
-
-    SPEC §5. Unobserved poses get no bin of their own; one extra "unseen" bin with
-    parameter 1 carries value 0. The Dirichlet draws are exact (normalised Gamma
-    draws); the quantile interpolates linearly between order statistics (NumPy's
-    default).
-
-    Args:
-      keys: [B] typed PRNG keys (consumed).
-      counts: [B, P] drop counts c_s.
-      observed: [B, P] bool, pose observed so far.
-      values: [B, P] p̂*_s, the estimated best success probability of each pose.
-      delta: the quantile δ_stop (scalar or [B]).
-      num_samples: M.
-    Returns:
-      [B] float32 lower bounds p̂_ℓ.
-    """
-    counts = jnp.asarray(counts, jnp.float32)
-    observed = jnp.asarray(observed, bool)
-    values = jnp.asarray(values, jnp.float32)
-    rows, p = counts.shape
-    delta = jnp.broadcast_to(jnp.asarray(delta, jnp.float32), (rows,))
-    alpha = jnp.concatenate(
-        [jnp.where(observed, jnp.maximum(counts, 0.0) + 1.0, 1.0), jnp.ones((rows, 1))],
-        axis=1,
-    )  # [B, P+1], all >= 1
-    # Draws keyed by pose, as those of the engine's bounds.
-    g = gamma_bins(keys, alpha, list(range(p)) + [MAX_BIN_ID], num_samples)
-    keep = jnp.concatenate([observed, jnp.ones((rows, 1), bool)], axis=1)
-    g = jnp.where(keep[:, None, :], g, 0.0)
-    v = jnp.concatenate(
-        [jnp.where(observed, values, 0.0), jnp.zeros((rows, 1))], axis=1
-    )
-    pv = jnp.sum(g * v[:, None, :], axis=2) / jnp.sum(g, axis=2)  # [B, M]
-    pv = jnp.sort(pv, axis=1)
-    pos = delta * (num_samples - 1)
-    lo = jnp.clip(jnp.floor(pos).astype(jnp.int32), 0, num_samples - 1)
-    hi = jnp.minimum(lo + 1, num_samples - 1)
-    frac = pos - lo.astype(jnp.float32)
-    v_lo = jnp.take_along_axis(pv, lo[:, None], axis=1)[:, 0]
-    v_hi = jnp.take_along_axis(pv, hi[:, None], axis=1)[:, 0]
-    return v_lo + frac * (v_hi - v_lo)
 
 
 # --------------------------------------------------------------------------------------

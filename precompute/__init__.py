@@ -2,7 +2,8 @@
 
 ``python -m precompute --help`` builds problem files; ``python -m precompute report``
 summarises them. The sweep calls :func:`ensure`, which builds missing or out-of-date
-problem files on demand. NumPy, trimesh and Embree only: no JAX here.
+problem files on demand. NumPy, trimesh and Embree; JAX (flax, optax) only for the
+learned prior (``train-prior`` and ``--prior learned``).
 """
 
 from . import catalog

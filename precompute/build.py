@@ -4,31 +4,34 @@ Pipeline of one object: load and repair the mesh (:mod:`.mesh`), stable poses an
 landing probabilities, topple matrix (:mod:`.poses`), then per pose: an Embree scene
 of the posed mesh and its height map, T reservoirs of K grasps (:mod:`.grasps`), the
 ground truth p of every grasp from S perturbed executions (all trials of a pose in a
-few large Embree calls), and the synthetic prior q (:mod:`.prior`).
+few large Embree calls), and the prior q: learned (:mod:`.learned`, a network that
+sees the pose's depth image and the grasps, never p) or synthetic (:mod:`.prior`,
+made from p); ``BuildParams.prior`` chooses, defaulting to learned when its weights
+are shipped (``precompute/prior_weights/weights.npz``) and to synthetic until then.
 
 Randomness: every stream is a NumPy ``Generator`` seeded by
 ``SeedSequence([seed, object_key, pose, trial, stream])``, with ``object_key`` a
-hash of the object's name and streams 1 (grasp sampling), 2 (perturbations) and
-3 (prior). Nothing depends on the order of work or the number of processes, and
-the same inputs give byte-identical files.
+hash of the object's name and streams 1 (grasp sampling), 2 (perturbations),
+3 (synthetic prior noise) and 4 (the learned prior's sensor noise). Nothing
+depends on the order of work or the number of processes, and the same inputs give
+byte-identical files.
 
 Up-to-date check: a problem file records ``meta["build_hash"]``, a SHA-256 of the
 mesh file's bytes, its units and size rule, every build parameter, the gripper and
-prior constants and ``CODE_VERSION``; a file whose hash matches is not rebuilt.
-``CODE_VERSION`` is bumped whenever a change alters the output. A file that differs
-only in its prior's constants (its hash matches when computed with the prior it
-records) keeps its poses, grasps and ground truth: only q is recomputed
-(:func:`reprior`), byte-identical to a full build with the new constants.
+prior constants (for the learned prior: the weights' SHA-256, camera and noise) and
+``CODE_VERSION``; a file whose hash matches is not rebuilt. ``CODE_VERSION`` is
+bumped whenever a change alters the output. A file that differs only in its prior's
+constants (its hash matches when computed with the prior it records) keeps its
+poses, grasps and ground truth: only q is recomputed (:func:`reprior`),
+byte-identical to a full build with the new constants.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import hashlib
-import io
 import json
 import os
-import zipfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -36,6 +39,7 @@ import numpy as np
 
 from . import catalog as _catalog
 from . import grasps as G
+from . import learned as _learned
 from . import poses as _poses
 from . import prior as _prior
 from .errors import PrecomputeError
@@ -61,6 +65,7 @@ CODE_VERSION = "2"
 STREAM_GRASPS = 1
 STREAM_PERTURB = 2
 STREAM_PRIOR = 3
+STREAM_DEPTH = 4
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,8 +77,17 @@ class BuildParams:
     samples: int = G.SAMPLES  # perturbed executions per grasp
     seed: int = 0
     landing_threshold: float = _poses.LANDING_THRESHOLD
+    # "learned" or "synthetic"; the default is learned once weights are shipped
+    prior: str = dataclasses.field(default_factory=_learned.default_prior)
 
     def check(self) -> BuildParams:
+        if self.prior not in _learned.PRIORS:
+            raise PrecomputeError(
+                f"unknown prior '{self.prior}' (choose one of "
+                f"{', '.join(_learned.PRIORS)})"
+            )
+        if self.prior == "learned":
+            _learned.prior_params()  # a clear error when the weights are missing
         if self.trials < 1:
             raise PrecomputeError(f"--trials must be at least 1, got {self.trials}")
         if self.grasps < 1:
@@ -105,22 +119,31 @@ def build_hash(
     prior: dict | None = None,
 ) -> str:
     """The hash of everything a build depends on; ``prior``: the prior's constants
-    (default: the current ones)."""
+    (default: the current ones of the prior ``params.prior``)."""
+    hashed = dataclasses.asdict(params)
+    del hashed["prior"]  # in "prior" below (synthetic builds keep their old hash)
     blob = json.dumps(
         {
             "mesh_sha256": mesh_sha256,
             "units": units,
             "fit": fit,
             "name": name,
-            "params": dataclasses.asdict(params),
+            "params": hashed,
             "gripper": G.gripper_params(),
-            "prior": prior if prior is not None else _prior.prior_params(),
+            "prior": prior if prior is not None else prior_params(params),
             "tilt": [_poses.TILT_SIGMA_DEG, _poses.TILT_ANGLES, _poses.TILT_AZIMUTHS],
             "code_version": CODE_VERSION,
         },
         sort_keys=True,
     )
     return hashlib.sha256(blob.encode()).hexdigest()
+
+
+def prior_params(params: BuildParams) -> dict:
+    """The constants of the chosen prior (meta and build hash)."""
+    if params.prior == "learned":
+        return _learned.prior_params()
+    return _prior.prior_params()
 
 
 def _rng(params: BuildParams, name: str, pose: int, trial: int, stream: int):
@@ -162,6 +185,7 @@ def build_problem(
         on_poses(P)
 
     rob = np.zeros((T, P, K), np.float32)
+    learned_prior = np.zeros((T, P, K), np.float32)
     valid = np.zeros((T, P, K), bool)
     center = np.zeros((T, P, K, 3), np.float32)
     axis = np.zeros((T, P, K, 3), np.float32)
@@ -201,6 +225,12 @@ def build_problem(
             np.concatenate(dyaw),
             np.concatenate(mu),
         )
+        if params.prior == "learned":
+            learned_q = _learned.score_reservoirs(
+                caster,
+                res,
+                [_rng(params, name, s, t, STREAM_DEPTH) for t in range(T)],
+            )
         offset = 0
         for t, r in enumerate(res):
             idx = where[t]
@@ -212,6 +242,8 @@ def build_problem(
             axis[t, s] = r.axis
             width[t, s] = r.width
             height[t, s] = r.center[:, 2]
+            if params.prior == "learned":
+                learned_prior[t, s] = learned_q[t]
         pose_info.append(
             {
                 "landing": round(float(sp.landing[s]), 6),
@@ -224,7 +256,10 @@ def build_problem(
         if on_pose_done is not None:
             on_pose_done()
 
-    prior = synthetic_prior(params, name, rob, valid)
+    if params.prior == "learned":
+        prior = learned_prior
+    else:
+        prior = synthetic_prior(params, name, rob, valid)
     landing = sp.landing / sp.landing.sum()
     topple = topple / topple.sum(axis=1, keepdims=True)
     meta = {
@@ -243,8 +278,7 @@ def build_problem(
         "repairs": list(mesh.repairs),
         "params": dataclasses.asdict(params),
         "gripper": G.gripper_params(),
-        "prior": _prior.prior_params(),
-        "prior_label": "synthetic GQ-CNN stand-in (not a learned network)",
+        **_prior_meta(params),
         "topple_tilts": {
             "sigma_deg": _poses.TILT_SIGMA_DEG,
             "angles": _poses.TILT_ANGLES,
@@ -289,10 +323,66 @@ def synthetic_prior(
     return prior
 
 
+def _prior_meta(params: BuildParams) -> dict:
+    """The meta entries that name the prior of a build."""
+    constants = prior_params(params)
+    if params.prior == "learned":
+        label = (
+            "learned GQ-CNN-style network (weights sha256 "
+            f"{constants['weights_sha256'][:12]})"
+        )
+    else:
+        label = "synthetic GQ-CNN stand-in (not a learned network)"
+    return {"prior_kind": params.prior, "prior": constants, "prior_label": label}
+
+
+@dataclasses.dataclass(frozen=True)
+class _Slots:
+    """A reservoir as a problem file stores it (what the learned prior scores)."""
+
+    valid: np.ndarray  # [K]
+    center: np.ndarray  # [K, 3] float32
+    axis: np.ndarray  # [K, 3] float32
+
+
+def _learned_prior_of(info, params: BuildParams, pb) -> np.ndarray | None:
+    """[T, P, K] learned q of the grasps of problem ``pb`` (catalogue object
+    ``info``), as a full build computes it: the mesh posed again (the same
+    deterministic poses, checked against the file's), each pose rendered, the
+    stored grasps scored. None when the poses do not match (a full build then)."""
+    try:
+        mesh = load_mesh(info.mesh_path, info.units, info.fit)
+        hull = _poses.hull_model(mesh.vertices, mesh.faces, mesh.center_mass)
+        sp = _poses.stable_poses(
+            hull, mesh.vertices, mesh.faces, threshold=params.landing_threshold
+        )
+    except (PrecomputeError, ValueError):
+        return None
+    tfs = sp.transforms
+    if tfs.shape != pb.pose_transform.shape or not np.array_equal(
+        tfs.astype(np.float32), pb.pose_transform
+    ):
+        return None
+    T, P, K = pb.prior.shape
+    q = np.zeros((T, P, K), np.float32)
+    for s in range(P):
+        tf = tfs[s]
+        caster = RayCaster(_rotate(mesh.vertices, tf[:3, :3]) + tf[:3, 3], mesh.faces)
+        slots = [
+            _Slots(pb.valid[t, s], pb.grasp_center[t, s], pb.grasp_axis[t, s])
+            for t in range(T)
+        ]
+        rngs = [_rng(params, info.name, s, t, STREAM_DEPTH) for t in range(T)]
+        q[:, s] = _learned.score_reservoirs(caster, slots, rngs)
+    return q
+
+
 def reprior(path: Path, info, params: BuildParams) -> bool:
     """Recompute the prior of the problem file at ``path`` (catalogue object
-    ``info``) with the current constants, when the file is current in everything
-    else; True when it was rewritten (False: it needs a full build)."""
+    ``info``) with the current constants of the prior ``params.prior``, when the
+    file is current in everything else (whichever prior it carries); True when it
+    was rewritten (False: it needs a full build). The learned prior needs the
+    poses again (seconds an object) and then only renders and scores."""
     import dataclasses as _dc
 
     from legs_jax.problem import load, save
@@ -307,9 +397,15 @@ def reprior(path: Path, info, params: BuildParams) -> bool:
     if meta.get("build_hash") != old:
         return False
     pb = load(path)
-    q = synthetic_prior(params, info.name, pb.robustness, pb.valid)
+    if params.prior == "learned":
+        q = _learned_prior_of(info, params, pb)
+        if q is None:
+            return False
+    else:
+        q = synthetic_prior(params, info.name, pb.robustness, pb.valid)
     new_meta = dict(pb.meta)
-    new_meta["prior"] = _prior.prior_params()
+    new_meta.update(_prior_meta(params))
+    new_meta["params"] = dataclasses.asdict(params)  # its prior field included
     new_meta["build_hash"] = build_hash(
         mesh_sha, info.units, info.name, params, info.fit
     )
@@ -362,12 +458,10 @@ def problem_path(info, out: Path) -> Path:
 def read_meta(path: Path) -> dict | None:
     """The meta dict of a problem file without loading its arrays (None if
     unreadable)."""
+    from legs_jax import problem as problem_mod  # the one reader of the format
+
     try:
-        with zipfile.ZipFile(path) as z:
-            raw = z.read("meta_json.npy")
-        arr = np.load(io.BytesIO(raw), allow_pickle=False)
-        header = json.loads(str(arr.reshape(-1)[0]))
-        return dict(header.get("meta", {}))
+        return problem_mod.peek(path)["meta"]
     except Exception:  # noqa: BLE001 - any unreadable file is simply out of date
         return None
 

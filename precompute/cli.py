@@ -13,7 +13,10 @@ BUILD_HELP = """\
 Build problem files (SPEC §1) from meshes: stable poses and landing probabilities,
 topple matrix, T reservoirs of K top-down parallel-jaw grasps per pose, the
 ground-truth success probability of every grasp (Embree ray casting under
-perturbation) and the synthetic GQ-CNN stand-in prior.
+perturbation) and the prior q: --prior learned (a small GQ-CNN-style network that
+sees only the depth image of the pose and the grasp; the default once its weights
+are shipped in precompute/prior_weights/) or --prior synthetic (made from p plus
+seeded noise; the default while no weights are shipped).
 
 A file current in everything but the prior's constants keeps its poses, grasps
 and ground truth; only its prior is recomputed.
@@ -26,6 +29,8 @@ mesh, parameters and code version) are skipped; --force rebuilds them.
 Other commands:
   python -m precompute report      summary.csv and figures of built problems
   python -m precompute calibrate   prior-only gaps per set for a grid of prior noise
+  python -m precompute train-prior generate objects, label them, train the learned
+                                   prior (--quick: about a minute)
 """
 
 
@@ -87,6 +92,13 @@ def _build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--seed", type=int, default=d.seed, help="seed (0)")
     p.add_argument(
+        "--prior",
+        choices=["learned", "synthetic"],
+        default=None,
+        help="prior q of the problems (default: learned when its weights are "
+        "shipped, else synthetic)",
+    )
+    p.add_argument(
         "--jobs", type=int, default=None, help="worker processes (default: CPU cores)"
     )
     p.add_argument("--force", action="store_true", help="rebuild up-to-date files too")
@@ -106,12 +118,19 @@ def _build(argv) -> int:
         problems_dir,
         reprior,
     )
+    from .learned import default_prior
     from .mesh import UNITS
     from .runner import Task, run_tasks
 
     a = _build_parser().parse_args(argv)
+    prior = a.prior if a.prior is not None else default_prior()
+    if a.prior is None and prior == "synthetic":
+        print(
+            "note: no learned-prior weights are shipped yet "
+            "(python -m precompute train-prior makes them); using --prior synthetic"
+        )
     params = BuildParams(
-        trials=a.trials, grasps=a.grasps, samples=a.samples, seed=a.seed
+        trials=a.trials, grasps=a.grasps, samples=a.samples, seed=a.seed, prior=prior
     ).check()
     if a.jobs is not None and a.jobs < 1:
         raise PrecomputeError(f"--jobs must be at least 1, got {a.jobs}")
@@ -139,8 +158,13 @@ def _build(argv) -> int:
             infos = catalog.objects(a.set_name)
         else:
             infos = catalog.resolve(a.object)
+        from tqdm import tqdm
+
         tasks, skipped, repriored = [], [], []
-        for i in infos:
+        # recomputing a learned prior renders and scores every pose: show it
+        bar = tqdm(infos, desc="check", unit="obj", disable=a.quiet, leave=False)
+        for i in bar:
+            bar.set_postfix_str(i.name, refresh=False)
             dest = problem_path(i, out)
             if not a.force and is_up_to_date(dest, expected_hash(i, params)):
                 skipped.append(dest)
@@ -178,6 +202,10 @@ def main(argv=None) -> int:
             from .report import main as report_main
 
             return report_main(argv[1:])
+        if argv and argv[0] == "train-prior":
+            from .train_prior import main as train_main
+
+            return train_main(argv[1:])
         if argv and argv[0] == "calibrate":
             from .calibrate import main as calibrate_main
 

@@ -6,20 +6,25 @@ Writes, under ``--out`` (default ``results/precompute``):
 - ``summary.csv``: one row per object: set, object, poses P, landing probabilities
   λ (largest first, ``;``-separated), valid grasps per pose (mean over trials), the
   fraction of valid grasps with p ≥ 0.5, p* per pose (mean over trials), the
-  λ-weighted p*, the prior–truth correlation (Pearson, over all valid grasps of all
-  trials) and the prior-only gaps of the Dex-Net row and the K=100 upper bound
+  λ-weighted p*, the prior's kind (learned or synthetic), the prior–truth
+  correlation (Pearson, over all valid grasps of all trials), the prior's ROC AUC
+  for p ≥ 0.5, and the prior-only gaps of the Dex-Net row and the K=100 upper bound
   (SPEC §5, mean over trials; :func:`precompute.analysis.prior_only_gaps`).
 - ``sets.csv`` and ``sets.md``: per set, those two gaps (mean ± standard error
   across objects) beside the paper's (Dex-Net set 0.56 / 0.08, EGAD 0.59 / 0.13),
   and whether each lies within ±0.05 of the paper's.
 - ``figures/poses/<set>/<object>.png``: the object drawn in each stable pose with
   the five grasps of highest ground truth of trial 0 (coloured by p).
+- ``figures/prior_reliability.png``: the prior's reliability diagram per set (mean p
+  and share of p ≥ 0.5 per bin of q).
 - ``figures/robustness_<set>.png``: a histogram of the ground-truth robustness of
   every valid grasp (all trials, all poses) per object, log scale (the paper's
   Fig. 3, middle row).
 
-The prior is synthetic (a calibrated stand-in for GQ-CNN); every table and figure
-says so.
+Each problem records its prior (learned or synthetic, ``meta["prior_kind"]``); the
+object rows and the set table say which, and give its ROC AUC for p ≥ 0.5. The
+synthetic prior is a calibrated stand-in for GQ-CNN, the learned one a small
+network trained on generated objects (``precompute/prior_weights/MODEL_CARD.md``).
 """
 
 from __future__ import annotations
@@ -45,6 +50,28 @@ def _fmt_list(values, digits: int) -> str:
     return ";".join(f"{v:.{digits}f}" for v in values)
 
 
+def prior_kind(pb) -> str:
+    """The prior a problem file carries: "learned" or "synthetic"."""
+    kind = pb.meta.get("prior_kind")
+    if kind is None:  # files from before the learned prior, and test fakes
+        prior = pb.meta.get("prior")
+        kind = "synthetic" if prior == "synthetic" or isinstance(prior, dict) else "?"
+    return str(kind)
+
+
+def roc_auc(score: np.ndarray, positive: np.ndarray) -> float:
+    """Area under the ROC curve of ``score`` for the classes ``positive`` (ties
+    count one half; NaN when a class is empty)."""
+    from scipy.stats import rankdata
+
+    positive = np.asarray(positive, bool)
+    n1, n0 = int(positive.sum()), int((~positive).sum())
+    if n1 == 0 or n0 == 0:
+        return float("nan")
+    r = rankdata(np.asarray(score, np.float64))
+    return float((r[positive].sum() - n1 * (n1 + 1) / 2) / (n1 * n0))
+
+
 def object_row(pb, set_name: str) -> dict:
     """Summary statistics of one problem (a :class:`legs_jax.problem.Problem`)."""
     from .analysis import prior_only_gaps
@@ -66,6 +93,7 @@ def object_row(pb, set_name: str) -> dict:
     return {
         "set": set_name,
         "object": pb.name,
+        "prior": prior_kind(pb),
         "poses": P,
         "landing": _fmt_list(lam, 4),
         "valid_grasps_per_pose": _fmt_list(n_valid.mean(axis=0), 1),
@@ -74,6 +102,7 @@ def object_row(pb, set_name: str) -> dict:
         "p_star_per_pose": _fmt_list(p_star.mean(axis=0), 3),
         "p_star": float(g["p_star"].mean()),
         "prior_truth_corr": corr,
+        "prior_auc": roc_auc(qv, pv >= GOOD),
         "dexnet_gap": float(g["dexnet"].mean()),
         "k100_ub_gap": float(g["k100_ub"].mean()),
     }
@@ -101,7 +130,11 @@ def set_rows(rows: Sequence[dict]) -> list[dict]:
         entry["prior_truth_corr"] = float(
             np.nanmean([r["prior_truth_corr"] for r in sel])
         )
+        aucs = [r.get("prior_auc", np.nan) for r in sel]
+        aucs = [x for x in aucs if not np.isnan(x)]  # NaN: one class only
+        entry["prior_auc"] = float(np.mean(aucs)) if aucs else float("nan")
         entry["frac_p_ge_0.5"] = float(np.nanmean([r["frac_p_ge_0.5"] for r in sel]))
+        entry["prior"] = "+".join(sorted({str(r.get("prior", "?")) for r in sel}))
         out.append(entry)
     return out
 
@@ -122,16 +155,22 @@ def _write_csv(rows: Sequence[dict], path: Path) -> Path:
 
 def _sets_markdown(sets: Sequence[dict]) -> str:
     label = {"dexnet_adv": "Dex-Net adversarial", "egad_eval": "EGAD evaluation"}
+    names = {
+        "synthetic": "synthetic GQ-CNN stand-in",
+        "learned": "learned GQ-CNN-style network",
+    }
+    kinds = sorted({k for s in sets for k in str(s.get("prior", "?")).split("+")})
+    which = " and ".join(names.get(k, k) for k in kinds)
     lines = [
-        "# Prior-only rows of the built problems (prior: synthetic GQ-CNN stand-in)",
+        f"# Prior-only rows of the built problems (prior: {which})",
         "",
         "Optimality gap at the prior's choice (Dex-Net row) and with the best of "
         "the 100 grasps of highest prior (K=100 upper bound), mean ± standard "
         "error across objects, beside the paper's Table I.",
         "",
         "| set | objects | Dex-Net gap | paper | K100 UB gap | paper | "
-        "corr(p, q) | grasps with p ≥ 0.5 |",
-        "|---|---|---|---|---|---|---|---|",
+        "corr(p, q) | ROC AUC (p ≥ 0.5) | grasps with p ≥ 0.5 | prior |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in sets:
         mark = {True: "", False: " (outside ±0.05)"}
@@ -141,7 +180,8 @@ def _sets_markdown(sets: Sequence[dict]) -> str:
             f"{mark[s['dexnet_gap_within_0.05']]} | {s['dexnet_gap_paper']:.2f} | "
             f"{s['k100_ub_gap']:.3f} ± {s['k100_ub_gap_se']:.3f}"
             f"{mark[s['k100_ub_gap_within_0.05']]} | {s['k100_ub_gap_paper']:.2f} | "
-            f"{s['prior_truth_corr']:.2f} | {100 * s['frac_p_ge_0.5']:.1f} % |"
+            f"{s['prior_truth_corr']:.2f} | {s.get('prior_auc', float('nan')):.2f} | "
+            f"{100 * s['frac_p_ge_0.5']:.1f} % | {s.get('prior', '?')} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -259,6 +299,49 @@ def robustness_figure(
     return _finish(plt, fig, title, 9, path)
 
 
+RELIABILITY_BINS = 10
+
+
+def reliability_counts(q: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """[bins, 4] per equal-width bin of q: grasps, Σq, Σp, grasps with p ≥ 0.5
+    (sums, so that objects add up)."""
+    q = np.asarray(q, np.float64)
+    p = np.asarray(p, np.float64)
+    k = np.minimum((q * RELIABILITY_BINS).astype(np.int64), RELIABILITY_BINS - 1)
+    n = RELIABILITY_BINS
+    return np.stack(
+        [
+            np.bincount(k, minlength=n).astype(np.float64),
+            np.bincount(k, q, n),
+            np.bincount(k, p, n),
+            np.bincount(k, (p >= GOOD).astype(np.float64), n),
+        ],
+        axis=1,
+    )
+
+
+def reliability_figure(counts: dict, priors: dict, path: Path) -> Path:
+    """Reliability diagram of the prior per set: mean p (solid) and share of
+    p ≥ 0.5 (dashed) against mean q, per bin of q; ``counts``: set ->
+    :func:`reliability_counts` summed over its objects; ``priors``: set -> kind."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(4.2, 4.0), layout="constrained")
+    ax.plot([0, 1], [0, 1], color="0.7", lw=1)
+    for set_name, c in counts.items():
+        ok = c[:, 0] > 0
+        mq = c[ok, 1] / c[ok, 0]
+        (line,) = ax.plot(
+            mq, c[ok, 2] / c[ok, 0], "o-", label=f"{set_name} ({priors[set_name]})"
+        )
+        ax.plot(mq, c[ok, 3] / c[ok, 0], "s--", color=line.get_color(), alpha=0.6)
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 1)
+    ax.set_xlabel("prior q (bin mean)")
+    ax.set_ylabel("ground truth: mean p (solid), share p ≥ 0.5 (dashed)")
+    ax.legend(fontsize=7, loc="upper left")
+    return _finish(plt, fig, "Reliability of the prior on the evaluation sets", 9, path)
+
+
 # ------------------------------------------------------------------------- CLI
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
@@ -305,7 +388,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     from tqdm import tqdm
 
-    rows, by_set = [], {}
+    rows, by_set, rel, kinds = [], {}, {}, {}
     bar = tqdm(found, desc="objects", unit="obj", disable=a.quiet)
     for info, path in bar:
         bar.set_postfix_str(info.name)
@@ -316,6 +399,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         rows.append(object_row(pb, info.set))
         # Only what the histogram needs, not the whole problem.
         by_set.setdefault(info.set, []).append((pb.name, pb.robustness[pb.valid]))
+        c = reliability_counts(pb.prior[pb.valid], pb.robustness[pb.valid])
+        rel[info.set] = rel.get(info.set, 0) + c
+        kinds.setdefault(info.set, set()).add(prior_kind(pb))
         if not a.no_figures:
             pose_figure(
                 pb, info, a.out / "figures" / "poses" / info.set / f"{info.name}.png"
@@ -333,6 +419,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                     objects, set_name, a.out / "figures" / f"robustness_{set_name}.png"
                 )
             )
+        priors = {k: "+".join(sorted(v)) for k, v in kinds.items()}
+        written.append(
+            reliability_figure(rel, priors, a.out / "figures" / "prior_reliability.png")
+        )
     if not a.quiet:
         print(_sets_markdown(sets))
         for p in written:

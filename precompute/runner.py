@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import queue
+import sys
 import time
 from pathlib import Path
 
@@ -143,6 +144,10 @@ def _parallel(tasks, params, jobs, bars, results, errors):
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
     method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
+    if getattr(params, "prior", None) == "learned" or "jax" in sys.modules:
+        # the learned prior runs JAX in the workers: a forked copy of a process
+        # whose JAX runtime already started can hang, so start them afresh
+        method = "spawn"
     ctx = mp.get_context(method)
     with ctx.Manager() as manager:
         messages = manager.Queue()

@@ -6,26 +6,15 @@ LEGS (trial 0, rollout 0 of each object) is recorded at every check, and the
 ground-truth robustness of trial 0's reservoir is saved for the histogram.
 """
 
+from sweeps import main
+
 NAME = "case_study"
 DESCRIPTION = "Fig. 3: learning curves, robustness histograms, LEGS active sets"
 
 OBJECTS = ("climbing_hold", "C3", "F6", "turbine_housing")
 
-ARMS = (
-    ("dexnet", "", {}),
-    ("k100_ub", "", {}),
-    ("borges_100", "", {}),
-    ("borges_2000", "", {}),
-    ("legs_no_as", "", {}),
-    ("legs", "", {}),
-    ("tql", "", {}),
-)
-
-TRIALS = 10
-ROLLOUTS = 10
-HORIZON = 3000
-RECORD_EVERY = 10
-CHECK_EVERY = 100
+# Every method of Table I in its default configuration.
+ARMS = tuple(arm for arm in main.ARMS if arm[1] == "")
 
 CHECK_METHODS = ("legs",)
 ACTIVE_SET_METHODS = ("legs",)

@@ -11,13 +11,4 @@ OBJECTS = ("bar_clamp",)
 
 ARMS = (("legs", "", {"delta": (0.01, 0.05, 0.10, 0.15, 0.20, 0.25), "s": 1.0}),)
 
-TRIALS = 10
-ROLLOUTS = 10
-HORIZON = 3000
-RECORD_EVERY = 10
-CHECK_EVERY = 100
-
-CHECK_METHODS = ()
-ACTIVE_SET_METHODS = ()
-
 SMOKE_OBJECTS = ("bar_clamp",)

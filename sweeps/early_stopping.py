@@ -14,14 +14,7 @@ OBJECTS = ("dexnet_adv",)
 
 ARMS = (("legs", "", {}),)
 
-TRIALS = 10
-ROLLOUTS = 10
-HORIZON = 3000
-RECORD_EVERY = 10
-CHECK_EVERY = 100
-
 CHECK_METHODS = ("legs",)
-ACTIVE_SET_METHODS = ()
 
 # Stopping thresholds of the sensitivity analysis (Fig. 4): 0.05, 0.10, ..., 0.95.
 RHO_MIN = tuple(round(0.05 * i, 2) for i in range(1, 20))

@@ -11,13 +11,4 @@ OBJECTS = ("bar_clamp",)
 
 ARMS = (("legs", "", {"s": (0.0, 1.0, 2.0, 3.0, 4.0, 5.0), "delta": 0.07}),)
 
-TRIALS = 10
-ROLLOUTS = 10
-HORIZON = 3000
-RECORD_EVERY = 10
-CHECK_EVERY = 100
-
-CHECK_METHODS = ()
-ACTIVE_SET_METHODS = ()
-
 SMOKE_OBJECTS = ("bar_clamp",)

@@ -141,7 +141,7 @@ def test_grid_is_a_batch_axis_and_compiles_once(hidden):
     grid = engine.run(hidden, "borges_100", hparams=dict(s=[1.0, 4.0]), **kw)
     before = sum(engine.trace_counts().values())
     one = engine.run(hidden, "borges_100", hparams=dict(s=4.0), **kw)
-    other = engine.run(hidden, "borges_100", hparams=dict(gamma=0.5), seed=3, **kw)
+    other = engine.run(hidden, "borges_100", hparams=dict(s=1.0), seed=3, **kw)
     assert sum(engine.trace_counts().values()) == before  # no new trace
     assert grid.final_gap.shape == (2, 1, 1, 4)
     np.testing.assert_array_equal(grid.gap_curve[1:], one.gap_curve)
@@ -202,7 +202,7 @@ def test_result_layout_and_constant_rows():
     r = engine.run(
         batch, "dexnet", object_ids=[1, 2], trials=[2, 0], num_rollouts=3,
         horizon=105, record_every=10, check_every=50, progress=calls.append,
-        hparams=dict(n=[50, 100]),
+        hparams=dict(s=[1.0, 3.0]),
     )  # fmt: skip
     shape = (2, 2, 2, 3)
     assert r.final_gap.shape == shape and r.successes.dtype == np.int64
@@ -216,7 +216,7 @@ def test_result_layout_and_constant_rows():
         for i, trial in enumerate((2, 0)):
             want = ref.constant_gap(pbm, "dexnet", trial)
             np.testing.assert_allclose(r.gap_curve[:, o, i], want, atol=2e-6)
-    np.testing.assert_array_equal(r.final_gap[0], r.final_gap[1])  # n is unused
+    np.testing.assert_array_equal(r.final_gap[0], r.final_gap[1])  # s: no choice
     assert calls and calls[-1] == 2 * 2 * 2 * 3
     # checks switched off
     r0 = engine.run(

@@ -20,8 +20,10 @@ import pytest
 
 from legs_jax import engine, keys, methods
 from legs_jax import reference as ref
+from legs_jax.errors import ConfigError
+from legs_jax.methods import conformance
 from legs_jax.methods import legs as legs_method
-from legs_jax.methods.base import Config, Ctx, HParams, prune_mask
+from legs_jax.methods.base import Config, Ctx, prune_mask
 from legs_jax.problem import stack
 from legs_jax.synthetic import make_problem
 
@@ -33,6 +35,12 @@ G, B = 3, 128  # the shared jit(vmap) program: 3 grid points x 128 rollouts
 # point 2 exercises unusual values, among them the original BORGES prior
 # (prior_offset = 0, s = 5: Beta shapes below 1).
 ODD = dict(s=5.0, prior_offset=0.0, delta=0.2, gamma=0.5, epsilon=0.5, eta=0.3)
+
+
+def own(method: str, **hp):
+    """The entries of ``hp`` that are hyperparameters of ``method``."""
+    known = methods.get(method).defaults()
+    return {k: v for k, v in hp.items() if k in known}
 
 
 def conformance_problem():
@@ -60,13 +68,14 @@ def shared_setup():
     return tables, Config(num_poses=4, num_grasps=160, **CFG_KN)
 
 
-def grid_hparams() -> HParams:
-    vals = dict(engine.HPARAM_DEFAULTS)
+def grid_hparams(name: str):
+    m = methods.get(name)
+    vals = m.defaults()
     leaves = {}
-    for name in engine.TRACED_HPARAMS:
-        col = np.array([vals[name], vals[name], ODD[name]], np.float32)
-        leaves[name] = jnp.asarray(np.repeat(col[:, None], B, 1))
-    return HParams(**leaves)
+    for n in m.traced:
+        col = np.array([vals[n], vals[n], ODD[n]], np.float32)
+        leaves[n] = jnp.asarray(np.repeat(col[:, None], B, 1))
+    return m.traced_hparams(**leaves)
 
 
 @functools.cache
@@ -79,7 +88,7 @@ def shared_run(name: str) -> dict[str, np.ndarray]:
     ot = jnp.asarray(np.arange(B) % 2, jnp.int32)
     r = np.arange(G * B)
     ks = keys.rollout_keys(0, np.full(G * B, 3), r % 2, r)  # r % 2 == ot
-    out = fn(tables, ot, ks.reshape(G, B), grid_hparams())
+    out = fn(tables, ot, ks.reshape(G, B), grid_hparams(name))
     assert fn._cache_size() == 1
     flat = jax.tree.map(lambda x: x.reshape((G * B,) + x.shape[2:]), out)
     flat = jax.device_get(engine.compiled_checks()(ks, flat))  # shared by methods
@@ -117,7 +126,7 @@ def _check_rollouts(name, tables, o, ot, horizon):
     _method_specific(name, tables, o, live, pose, grasp, ot_)
 
 
-@pytest.mark.parametrize("name", engine.METHODS)
+@pytest.mark.parametrize("name", methods.names())
 def test_conformance_jit_vmap_grid(name):
     """Every method under jit(vmap) over a grid axis of hyperparameters: masks,
     candidate sets, finite outputs, counters (one compiled program)."""
@@ -132,7 +141,7 @@ def test_conformance_jit_vmap_grid(name):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", engine.METHODS)
+@pytest.mark.parametrize("name", methods.names())
 def test_conformance_jit(name):
     """Every method under plain jit with odd hyperparameters, a second call with
     new values and keys reusing the compiled program."""
@@ -141,11 +150,11 @@ def test_conformance_jit(name):
     b = 16
     ot = jnp.asarray(np.arange(b) % 2, jnp.int32)
     before = sum(engine.trace_counts().values())
-    for i, vals in enumerate([ODD, dict(engine.HPARAM_DEFAULTS)]):
+    m = methods.get(name)
+    for i, vals in enumerate([ODD, m.defaults()]):
         ks = jax.random.split(jax.random.key(i), b)
-        hp = HParams(
-            **{n: jnp.full(b, vals[n], jnp.float32) for n in engine.TRACED_HPARAMS}
-        )
+        leaves = {n: jnp.full(b, vals[n], jnp.float32) for n in m.traced}
+        hp = m.traced_hparams(**leaves)
         o = {
             k: np.asarray(v) for k, v in jax.device_get(fn(tables, ot, ks, hp)).items()
         }
@@ -185,14 +194,64 @@ def _method_specific(name, tables, o, live, pose, grasp, ot_):
         assert np.all(o["replacements"] == 0)
 
 
-def test_registry_is_complete():
-    assert methods.names() == engine.METHODS
-    for name in engine.METHODS:
+def test_registry_declarations():
+    for name in methods.names():
         m = methods.get(name)
         assert m.name == name
+        conformance.check_declaration(m)
+        assert m.label and m.short_label and m.style
     assert methods.get("legs").prune is not None
     assert methods.get("legs_no_as").prune is not None
     assert methods.get("borges_2000").prune is None
+    assert methods.get("legs").static == ("k", "n")
+    assert [n for n in methods.names() if methods.get(n).oracle] == ["k100_ub"]
+    # the result columns: every hyperparameter, first declarer's default
+    cols = methods.column_defaults()
+    assert cols["delta"] == 0.05 and cols["k"] == 100 and cols["epsilon"] == 0.1
+    assert set(cols) == {"s", "prior_offset", "delta", "gamma", "k", "n"} | {
+        "epsilon",
+        "eta",
+    }
+
+
+def test_parse_grid_uses_the_method_declaration():
+    g, hp = methods.parse_grid(methods.get("legs"), {"delta": [0.1, 0.2], "k": 30})
+    assert g == 2 and hp["delta"].tolist() == [0.1, 0.2]
+    assert hp["k"].dtype == np.int64 and hp["k"].tolist() == [30, 30]
+    assert set(hp) == {"s", "prior_offset", "delta", "gamma", "k", "n"}
+    with pytest.raises(ConfigError, match="unknown hyperparameter.*of tql"):
+        methods.parse_grid(methods.get("tql"), {"delta": 0.1})
+    with pytest.raises(ConfigError, match="exceeds the K = 20"):
+        methods.parse_grid(methods.get("legs"), {"k": 30}, num_grasps=20)
+
+
+def _broken(**changes):
+    m = methods.get("borges_2000")
+    return dataclasses.replace(m, name="broken", **changes)
+
+
+def test_conformance_refuses_what_breaks_the_contract():
+    import jax.numpy as jnp
+
+    def masked_select(st, ctx, cfg, s, key):  # always the last (padded) grasp
+        g = jnp.full(s.shape, cfg.num_grasps - 1, jnp.int32)
+        return g, g, None
+
+    with pytest.raises(ConfigError, match="masked"):
+        conformance.check(_broken(select=masked_select, recommend_updated=None))
+
+    def nan_estimates(st, ctx, cfg):
+        a, b = methods.get("borges_2000").estimates(st, ctx, cfg)
+        return a * jnp.nan, b
+
+    with pytest.raises(ConfigError, match="not finite"):
+        conformance.check(_broken(estimates=nan_estimates))
+    with pytest.raises(ConfigError, match="NamedTuple"):
+        conformance.check_declaration(_broken(hparams=dict))
+
+
+def test_conformance_accepts_a_registered_method():
+    conformance.check(methods.get("legs"))
 
 
 # ------------------------------------------------------------------ pruning
@@ -298,8 +357,11 @@ def test_legs_prune_and_refill_from_a_given_state():
     rows, k = 8, 20
     cfg = Config(num_poses=4, num_grasps=160, k=k, n=25)
     ot = jnp.asarray(np.arange(rows) % 2, jnp.int32)
-    hp = HParams(
-        *(jnp.full(rows, v, jnp.float32) for v in (1.0, 1.0, 0.05, 0.3, 0.1, 0.1))
+    hp = legs_method.METHOD.traced_hparams(
+        **{
+            n: jnp.full(rows, v, jnp.float32)
+            for n, v in dict(s=1.0, prior_offset=1.0, delta=0.05, gamma=0.3).items()
+        }
     )
     ctx = Ctx(tables, ot, hp)
     st = jax.jit(legs_method.METHOD.init, static_argnums=1)(ctx, cfg)

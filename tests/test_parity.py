@@ -20,10 +20,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy import stats
-from test_methods import CFG_KN, ODD, RUN, conformance_problem, shared_run
+from test_methods import CFG_KN, ODD, RUN, conformance_problem, own, shared_run
 
+from legs_jax import engine, methods
 from legs_jax import reference as ref
-from legs_jax import sampling
 
 ALPHA = 1e-3  # level of every two-sample test
 R_REF = 100  # reference rollouts per trial (2 trials: 200)
@@ -46,7 +46,8 @@ def engine_result(name: str) -> dict[str, np.ndarray]:
 @functools.cache
 def reference_result(name: str) -> dict[str, np.ndarray]:
     r = ref.run(
-        _problem(), name, trials=[0, 1], num_rollouts=R_REF, hparams=CFG_KN, seed=0,
+        _problem(), name, trials=[0, 1], num_rollouts=R_REF,
+        hparams=own(name, **CFG_KN), seed=0,
         horizon=RUN["horizon"], record_every=RUN["record_every"],
         check_every=RUN["check_every"],
     )  # fmt: skip
@@ -81,7 +82,10 @@ def _welch(a, b, what):
     assert p > ALPHA, f"{what}: means {a.mean():.4g} vs {b.mean():.4g}, p = {p:.2g}"
 
 
-LEARNERS = ("borges_100", "borges_2000", "legs_no_as", "legs", "tql")
+# Every registered method that learns and has a NumPy twin.
+LEARNERS = tuple(
+    n for n in methods.names() if methods.get(n).learns and methods.get(n).reference
+)
 
 
 @pytest.mark.parametrize("name", LEARNERS)
@@ -147,12 +151,12 @@ def test_dirichlet_bound_in_distribution():
     values = np.array([0.9, 0.5, 0.2, 0.6, 0.0], np.float32)
     n = 400
     ks = jax.random.split(jax.random.key(4), n)
-    bound = jax.jit(sampling.dirichlet_lower_bound, static_argnums=5)
+    bound = jax.jit(engine.dirichlet_quantiles, static_argnums=(4, 5))
     got = np.asarray(
         bound(
             ks, jnp.tile(counts, (n, 1)), jnp.tile(observed, (n, 1)),
-            jnp.tile(values, (n, 1)), 0.05, 3000,
-        )
+            jnp.tile(values, (n, 1, 1)), 0.05, 3000,
+        )[:, 0]
     )  # fmt: skip
     rng = np.random.default_rng(5)
     want = np.array(
@@ -173,7 +177,8 @@ def test_parity_unusual_hyperparameters(name):
     rollouts against 128 reference rollouts."""
     e = {k: v[2] for k, v in shared_run(name).items()}
     r = ref.run(
-        _problem(), name, trials=[0, 1], num_rollouts=64, hparams=dict(CFG_KN, **ODD),
+        _problem(), name, trials=[0, 1], num_rollouts=64,
+        hparams=own(name, **CFG_KN, **ODD),
         seed=1, horizon=RUN["horizon"], record_every=RUN["record_every"],
         check_every=RUN["check_every"],
     )  # fmt: skip

@@ -227,7 +227,8 @@ def test_prior_only_gaps_match_a_hand_computation():
 
 
 def _small():
-    return BuildParams(trials=2, grasps=60, samples=20)
+    # the synthetic prior: these tests change its constants
+    return BuildParams(trials=2, grasps=60, samples=20, prior="synthetic")
 
 
 def test_build_is_byte_identical_and_seeded(tmp_path):
@@ -240,7 +241,9 @@ def test_build_is_byte_identical_and_seeded(tmp_path):
             info.mesh_path,
             units="m",
             name="bar_clamp",
-            params=BuildParams(trials=2, grasps=60, samples=20, seed=seed),
+            params=BuildParams(
+                trials=2, grasps=60, samples=20, seed=seed, prior="synthetic"
+            ),
         )
         return save(pb, tmp_path / name)
 

@@ -208,3 +208,15 @@ def test_stack_refuses_too_few_trials() -> None:
     a = make_problem(seed=1, num_poses=2, num_grasps=10, num_trials=1)
     with pytest.raises(ValueError, match="1 trials, 2 were asked"):
         pm.stack([a], num_trials=2)
+
+
+def test_peek_reads_the_header_without_the_arrays(tmp_path: Path) -> None:
+    pb = make_problem(3, num_poses=5, num_grasps=70, num_trials=2, name="peeked")
+    pb = dataclasses.replace(pb, meta={**pb.meta, "set": "custom", "object_id": 7})
+    path = pm.save(pb, tmp_path / "p.npz")
+    head = pm.peek(path)
+    assert head["name"] == "peeked" and head["meta"] == pm.load(path).meta
+    assert head["shapes"] == {"landing": (5,), "robustness": (2, 5, 70)}
+    (tmp_path / "bad.npz").write_bytes(b"not a zip")
+    with pytest.raises(zipfile.BadZipFile):
+        pm.peek(tmp_path / "bad.npz")

@@ -7,12 +7,16 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from legs_jax import methods
 from legs_jax import reference as ref
 from legs_jax.errors import ConfigError
 from legs_jax.problem import Problem
 from legs_jax.synthetic import make_problem
 
-LEARNERS = ("borges_100", "borges_2000", "legs_no_as", "legs", "tql")
+# Every registered method that learns and has a NumPy twin.
+LEARNERS = tuple(
+    n for n in methods.names() if methods.get(n).learns and methods.get(n).reference
+)
 
 
 def hand_problem(landing, topple, p, q, valid=None, pose_valid=None) -> Problem:
@@ -68,7 +72,14 @@ def padded(pb: Problem, extra_grasps: int = 7) -> Problem:
     ).validate()
 
 
+def own(method: str, **hp):
+    """The entries of ``hp`` that are hyperparameters of ``method``."""
+    known = methods.get(method).defaults()
+    return {k: v for k, v in hp.items() if k in known}
+
+
 def one_rollout(pb, method, hparams=None, horizon=300, seed=0, trial=0, **kw):
+    hparams = own(method, **(hparams or {}))
     return ref.run_rollout(
         pb,
         trial,
@@ -96,7 +107,7 @@ def perfect() -> Problem:
 
 @pytest.mark.parametrize("method", LEARNERS)
 def test_perfect_grasp_gap_goes_to_zero(perfect: Problem, method: str) -> None:
-    hp = {"k": 5, "n": 20}  # LEGS starts from grasps 0-4 and must refill to reach 7
+    hp = own(method, k=5, n=20)  # LEGS starts from grasps 0-4, must refill to reach 7
     res = ref.run(perfect, method, num_rollouts=4, horizon=1500, hparams=hp)
     # Step 0: no data, argmax prior = grasp 0 (ties -> lowest index), p = 0.05.
     np.testing.assert_allclose(res.gap_curve[..., 0], 0.95, atol=1e-6)
@@ -295,7 +306,7 @@ def test_dirichlet_bound_against_scipy() -> None:
 def test_tql_update_arithmetic() -> None:
     pb = hand_problem([1.0], [[1.0]], [[0.5, 0.5]], [[0.3, 0.8]])
     hp = ref.check_hparams(pb, "tql", {"eta": 0.1})
-    m = ref._make_method(pb, 0, "tql", hp)
+    m = methods.get("tql").reference(pb, 0, hp)
     np.testing.assert_allclose(m.Q, [[0.3, 0.8]])  # Q0 = q
     expected = 0.3
     for r in (True, False, True, True):
@@ -334,7 +345,7 @@ def test_posterior_parameters() -> None:
     to [0.01, 0.99]."""
     pb = hand_problem([1.0], [[1.0]], np.zeros((1, 3)), [[0.0, 0.5, 1.0]])
     hp = ref.check_hparams(pb, "borges_2000", {"s": 2.0, "prior_offset": 1.0})
-    m = ref._make_method(pb, 0, "borges_2000", hp)
+    m = methods.get("borges_2000").reference(pb, 0, hp)
     np.testing.assert_allclose(m.alpha[0], [1.02, 2.0, 2.98])
     np.testing.assert_allclose(m.beta[0], [2.98, 2.0, 1.02])
     m.update(0, 1, True)
@@ -348,7 +359,7 @@ def test_thompson_selection_probability() -> None:
     = 5/6. 20000 selections; tolerance 4 standard errors (0.0105)."""
     pb = hand_problem([1.0], [[1.0]], np.zeros((1, 2)), [[0.5, 0.5]])
     hp = ref.check_hparams(pb, "borges_2000", {"s": 0.0, "prior_offset": 1.0})
-    m = ref._make_method(pb, 0, "borges_2000", hp)
+    m = methods.get("borges_2000").reference(pb, 0, hp)
     m.update(0, 0, True)  # Beta(2, 1)
     m.update(0, 1, False)  # Beta(1, 2)
     rng = np.random.default_rng(0)
@@ -362,7 +373,7 @@ def test_recommendation_rule() -> None:
     q = [[0.2, 0.9, 0.5, 0.7], [0.6, 0.1, 0.8, 0.3]]
     pb = hand_problem([0.5, 0.5], [[0.5, 0.5]] * 2, np.zeros((2, 4)), q)
     hp = ref.check_hparams(pb, "borges_2000", {"s": 0.0})
-    m = ref._make_method(pb, 0, "borges_2000", hp)
+    m = methods.get("borges_2000").reference(pb, 0, hp)
     np.testing.assert_array_equal(m.recommend(), [1, 2])
     m.update(0, 1, False)  # mean 1/3; untried grasps 0, 2, 3 all have 1/2
     np.testing.assert_array_equal(m.recommend(), [0, 2])
@@ -370,7 +381,7 @@ def test_recommendation_rule() -> None:
     np.testing.assert_array_equal(m.recommend(), [3, 2])
     # LEGS: an unvisited pose's candidates are its initial top-k.
     hp = ref.check_hparams(pb, "legs", {"k": 2})
-    m = ref._make_method(pb, 0, "legs", hp)
+    m = methods.get("legs").reference(pb, 0, hp)
     np.testing.assert_array_equal(m.slots, [[1, 3], [2, 0]])
     np.testing.assert_array_equal(m.recommend(), [1, 2])
 
@@ -378,7 +389,7 @@ def test_recommendation_rule() -> None:
 # ------------------------------------------------------------ masks and poses
 
 
-@pytest.mark.parametrize("method", ref.METHODS)
+@pytest.mark.parametrize("method", methods.names())
 def test_masks_never_selected(method: str) -> None:
     base = make_problem(
         seed=2, num_poses=4, num_grasps=150, num_trials=2, invalid_fraction=0.2
@@ -410,7 +421,7 @@ def test_pose_without_valid_grasp() -> None:
     pb = hand_problem(
         [0.5, 0.5], [[0.8, 0.2], [1.0, 0.0]], p, [[0.5, 0.6, 0.4], [1, 1, 1]], valid
     )
-    for method in ref.METHODS:
+    for method in methods.names():
         out = one_rollout(pb, method, {"k": 3}, horizon=400)
         in1 = out["poses"] == 1
         assert in1.sum() > 10
@@ -434,14 +445,14 @@ def small() -> Problem:
     return make_problem(seed=1, num_poses=4, num_grasps=120, num_trials=2)
 
 
-@pytest.mark.parametrize("method", ref.METHODS)
+@pytest.mark.parametrize("method", methods.names())
 def test_result_shapes_and_identities(small: Problem, method: str) -> None:
     res = ref.run(
         small,
         method,
         num_rollouts=2,
         horizon=95,
-        hparams={"k": 30, "n": 20},
+        hparams=own(method, k=30, n=20),
         record_every=10,
         check_every=30,
     )
@@ -507,8 +518,8 @@ def test_active_set_recording(small: Problem) -> None:
         num_rollouts=1,
         horizon=200,
         record_active_set=True,
-        hparams={"k": k},
     )
+    assert res.active_set.shape[-1] == 100  # no k: the fixed top size
     assert (res.active_set == -1).all()
 
 
@@ -644,6 +655,9 @@ def test_run_argument_errors(small: Problem, kwargs) -> None:
         ref.run(small, "legs", **{"num_rollouts": 1, "horizon": 10, **kwargs})
 
 
-def test_k_above_K_allowed_for_methods_without_active_set(small: Problem) -> None:
-    res = ref.run(small, "tql", num_rollouts=1, horizon=20, hparams={"k": 500})
+def test_hyperparameters_are_the_method_own(small: Problem) -> None:
+    """k is LEGS's: TQL refuses it, and LEGS refuses a k above K."""
+    with pytest.raises(ConfigError, match="unknown hyperparameter.*of tql"):
+        ref.run(small, "tql", num_rollouts=1, horizon=20, hparams={"k": 500})
+    res = ref.run(small, "tql", num_rollouts=1, horizon=20, hparams={"eta": 0.5})
     assert res.final_gap.shape == (1, 1, 2, 1)

@@ -15,7 +15,7 @@ import pytest
 import scipy.special
 import scipy.stats
 
-from legs_jax import sampling
+from legs_jax import engine, sampling
 
 # (alpha, beta) pairs: alpha = 1, shapes below 1 (prior_offset = 0), posterior-like
 # shapes and large counts.
@@ -328,7 +328,15 @@ def test_betainc_matches_scipy():
 
 
 DIRICHLET_ROWS = 64
-dirichlet_lower_bound = jax.jit(sampling.dirichlet_lower_bound)
+_quantiles = jax.jit(engine.dirichlet_quantiles, static_argnums=(4, 5))
+
+
+def dirichlet_lower_bound(keys, counts, observed, values, delta: float):
+    """The engine's bound (:func:`engine.dirichlet_quantiles`), one value vector
+    a row, M = 3000."""
+    v = jnp.asarray(values, jnp.float32)[:, None, :]
+    args = (jnp.asarray(counts, jnp.float32), jnp.asarray(observed), v)
+    return _quantiles(keys, *args, float(delta), 3000)[:, 0]
 
 
 def test_dirichlet_lower_bound_against_numpy_monte_carlo():
@@ -350,7 +358,7 @@ def test_dirichlet_lower_bound_against_numpy_monte_carlo():
             np.tile(counts, (rows, 1)),
             np.tile(observed, (rows, 1)),
             np.tile(values, (rows, 1)),
-            np.full(rows, delta, np.float32),
+            delta,
         )
     )
     se = got.std(ddof=1) / np.sqrt(rows)
@@ -370,11 +378,11 @@ def test_dirichlet_lower_bound_edges():
     observed[2] = False  # nothing observed: p' = 0
     values = np.ones((rows, 6), np.float32)
     values[1] = 0.0  # every value 0: p' = 0
-    delta = np.full(rows, 0.05, np.float32)
-    delta[3] = 0.5
-    got = np.asarray(
-        dirichlet_lower_bound(_keys(15, rows), counts, observed, values, delta)
+    got = np.array(
+        dirichlet_lower_bound(_keys(15, rows), counts, observed, values, 0.05)
     )
+    median = dirichlet_lower_bound(_keys(15, rows), counts, observed, values, 0.5)
+    got[3] = np.asarray(median)[3]
     # All observed mass has value 1: p' = 1 - lambda_unseen, lambda_unseen ~ Beta(1, 8).
     np.testing.assert_allclose(got[0], 1 - scipy.stats.beta.ppf(0.95, 1, 8), atol=0.02)
     np.testing.assert_allclose(got[3], 1 - scipy.stats.beta.ppf(0.5, 1, 8), atol=0.02)

@@ -22,7 +22,7 @@ import pytest
 import sweep_fakes
 
 import sweeps
-from legs_jax import problem, results, sweep, synthetic
+from legs_jax import methods, problem, results, sweep, synthetic
 
 
 # ---------------------------------------------------------------------- helpers
@@ -38,7 +38,7 @@ def fake_engine(monkeypatch):
     eng = types.SimpleNamespace(
         run=functools.partial(sweep_fakes.fake_run, calls=calls)
     )
-    monkeypatch.setattr(sweep, "_engine", lambda: eng)
+    monkeypatch.setattr(sweep.execute, "_engine", lambda: eng)
     return calls
 
 
@@ -106,7 +106,8 @@ def test_experiment_modules_declare_valid_arms(name):
 
 def test_paper_grids_and_extra_row():
     main = [sweep.make_arm(*a) for a in sweeps.get("main").ARMS]
-    assert {a.method for a in main} == set(sweep.METHODS)
+    paper = set(sweeps.get("main").TABLE_ORDER)
+    assert {a.method for a in main} == paper and paper <= set(methods.names())
     orig = [a for a in main if a.variant == "orig_prior"]
     assert len(orig) == 1 and orig[0].method == "borges_2000"
     assert dict(orig[0].grid[0])["prior_offset"] == 0.0
@@ -125,12 +126,17 @@ def test_paper_grids_and_extra_row():
     )
 
 
-def test_methods_and_defaults_match_the_engine_contract():
-    # The CLI checks names before JAX starts, so it keeps its own copy.
-    engine = pytest.importorskip("legs_jax.engine")
-    assert sweep.METHODS == engine.METHODS
-    assert sweep.HPARAM_DEFAULTS == engine.HPARAM_DEFAULTS
-    assert sweep._STATIC_HPARAMS == engine.STATIC_HPARAMS
+def test_arms_hold_every_result_column():
+    """A method's own hyperparameters with their values, the other columns with
+    the defaults of the methods declaring them."""
+    cols = methods.column_defaults()
+    for name in methods.names():
+        (point,) = sweep.make_arm(name, "", {}).grid
+        assert dict(point) == {**cols, **methods.get(name).defaults()}
+    (point,) = sweep.make_arm("tql", "", {"epsilon": 0.3}).grid
+    assert dict(point)["epsilon"] == 0.3 and dict(point)["k"] == 100
+    with pytest.raises(sweep.SweepError, match="unknown hyperparameter.*of tql"):
+        sweep.make_arm("tql", "", {"delta": 0.1})
 
 
 @pytest.mark.parametrize(
@@ -143,7 +149,7 @@ def test_methods_and_defaults_match_the_engine_contract():
         ({"epsilon": 1.1}, "epsilon"),
         ({"k": 0}, "k must be"),
         ({"k": (50, 100)}, "static"),
-        ({"s": (1.0, 2.0), "delta": (0.1,)}, "differ in length"),
+        ({"s": (1.0, 2.0), "delta": (0.1,)}, "equal lengths"),
         ({"bogus": 1}, "unknown hyperparameter"),
     ],
 )
@@ -182,7 +188,7 @@ def test_plan_covers_every_run_once_and_is_deterministic():
     for c in chunks:
         for o in c.objects:
             # An object shares a chunk only with objects of its padded shape.
-            assert c.num_poses == sweep._pose_bucket(objects[o].num_poses)
+            assert c.num_poses == sweep.plan._pose_bucket(objects[o].num_poses)
             for t in c.trials:
                 key = (c.arm, o, t)
                 assert key not in seen
@@ -198,7 +204,8 @@ def test_plan_covers_every_run_once_and_is_deterministic():
 
 def test_plan_splits_trials_when_one_object_is_too_big():
     plan = _plan([_obj("a", 4, 2000)], [("borges_2000", "", {})], trials=10)
-    per_trial = 2 * sweep._rollout_work("borges_2000", 100, 4, 2000, 300, 0)
+    arm = sweep.make_arm("borges_2000", "", {})
+    per_trial = 2 * sweep.plan._rollout_work(arm, 4, 2000, 300, 0)
     chunks = sweep.plan_chunks(plan, work_budget=3.5 * per_trial)
     sizes = [len(c.trials) for c in chunks]
     assert len(chunks) > 1 and sum(sizes) == 10 and max(sizes) - min(sizes) <= 1
@@ -216,7 +223,7 @@ def test_chunk_hash_depends_on_results_inputs_only():
 
 # --------------------------------------------------------------------- tables
 def _ctx(grid_points=1, trials=(0, 1), rollouts=2, **kw):
-    grid = [dict(sweep.HPARAM_DEFAULTS, s=float(g)) for g in range(grid_points)]
+    grid = [dict(methods.column_defaults(), s=float(g)) for g in range(grid_points)]
     return results.ChunkContext(
         experiment="main",
         method="legs",
@@ -407,6 +414,60 @@ def test_merged_results_without_chunks_are_kept(tmp_path, probs, fake_engine, ca
     assert code == 2 and "different configuration" in err
 
 
+def _files(folder: Path) -> dict[str, tuple[bytes, int]]:
+    return {
+        p.relative_to(folder).as_posix(): (p.read_bytes(), p.stat().st_mtime_ns)
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
+
+
+def test_complete_experiment_is_left_untouched(tmp_path, probs, fake_engine, capsys):
+    out = tmp_path / "out"
+    args = ["--experiment", "confidence", "--problems", *probs, "--out", str(out)]
+    args += ["--trials", "1", "--rollouts", "2", "--horizon", "100"]
+    assert _cli(args, capsys)[0] == 0
+    before, calls = _files(out), len(fake_engine)
+    code = sweep.main([*args, "--compile-cache", "off"])  # not quiet: the message
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "confidence: complete in" in err and "every file left as it is" in err
+    assert len(fake_engine) == calls and _files(out) == before
+
+
+@pytest.mark.parametrize("damage", ["truncate", "flip", "delete", "meta"])
+def test_damaged_chunk_is_recomputed(tmp_path, probs, fake_engine, capsys, damage):
+    """A finished chunk whose file was cut short, altered or lost (or whose
+    chunk.json is garbage) is found by its SHA-256, named in a warning and
+    computed again; the merged tables equal an undamaged run's."""
+    base = ["--experiment", "main", "--problems", *probs, "--trials", "2"]
+    base += ["--rollouts", "2", "--horizon", "100", "--methods", "legs,tql"]
+    assert _cli([*base, "--out", str(tmp_path / "ref")], capsys)[0] == 0
+    out = tmp_path / "out"
+    assert _cli([*base, "--out", str(out)], capsys)[0] == 0
+    chunk = sorted((out / "main" / "chunks").iterdir())[0]
+    f = chunk / "runs.parquet"
+    if damage == "truncate":
+        f.write_bytes(f.read_bytes()[: f.stat().st_size // 2])
+    elif damage == "flip":
+        data = bytearray(f.read_bytes())
+        data[len(data) // 2] ^= 0xFF
+        f.write_bytes(bytes(data))
+    elif damage == "delete":
+        f.unlink()
+    else:
+        (chunk / results.CHUNK_META).write_text("{not json")
+    calls = len(fake_engine)
+    code = sweep.main([*base, "--out", str(out), "--compile-cache", "off"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert f"chunk {chunk.name} is damaged" in err and "recomputing it" in err
+    assert "Traceback" not in err
+    assert len(fake_engine) == calls + 1  # that chunk alone
+    assert _read_all(out) == _read_all(tmp_path / "ref")
+    assert results.verify_chunk(chunk.parent, chunk.name) is None
+
+
 def test_cli_resume_after_interrupt_equals_uninterrupted(
     tmp_path, probs, fake_engine, capsys, monkeypatch
 ):
@@ -415,7 +476,7 @@ def test_cli_resume_after_interrupt_equals_uninterrupted(
     code, err = _cli([*base, "--out", str(tmp_path / "ref")], capsys)
     assert code == 0, err
 
-    real = sweep._run_chunk
+    real = sweep.execute._run_chunk
     n = {"chunks": 0}
 
     def interrupt_third(*a, **k):
@@ -424,14 +485,14 @@ def test_cli_resume_after_interrupt_equals_uninterrupted(
             raise KeyboardInterrupt
         return real(*a, **k)
 
-    monkeypatch.setattr(sweep, "_run_chunk", interrupt_third)
+    monkeypatch.setattr(sweep.execute, "_run_chunk", interrupt_third)
     code, err = _cli([*base, "--out", str(tmp_path / "res")], capsys)
     assert code == 130
     assert "kept 2 of" in err and "resume" in err
     man = json.loads((tmp_path / "res/main/manifest.json").read_text())
     assert man["status"] == "interrupted" and man["chunks_done"] == 2
     assert not (tmp_path / "res/main/runs.parquet").exists()
-    monkeypatch.setattr(sweep, "_run_chunk", real)
+    monkeypatch.setattr(sweep.execute, "_run_chunk", real)
     fake_engine.clear()
     code, err = _cli([*base, "--out", str(tmp_path / "res")], capsys)
     assert code == 0, err
@@ -519,15 +580,28 @@ def test_dry_run_prints_plan(tmp_path, probs, fake_engine, capsys):
     args = ["--experiment", "prior_strength", "--problems", probs[0], "--dry-run"]
     code = sweep.main([*args, "--out", str(tmp_path), "--trials", "3"])
     out = capsys.readouterr().out
-    assert code == 0 and "prior_strength: 1 object(s)" in out and "180 rollouts" in out
+    assert code == 0 and "prior_strength: 1 object(s)" in out
+    assert "180 rollouts to run" in out
     assert not fake_engine and not (tmp_path / "prior_strength").exists()
+    # the dry run says what the run will do: nothing once complete, with or
+    # without the chunk folders (a fresh clone of committed results)
+    assert sweep.main([*args[:-1], "--out", str(tmp_path), "--trials", "3"]) == 0
+    for _ in range(2):
+        code = sweep.main([*args, "--out", str(tmp_path), "--trials", "3"])
+        out = capsys.readouterr().out
+        assert code == 0 and "complete in" in out and "compute nothing" in out
+        shutil.rmtree(tmp_path / "prior_strength" / "chunks", ignore_errors=True)
+    code = sweep.main([*args, "--out", str(tmp_path), "--trials", "2"])
+    assert code == 0 and "another configuration" in capsys.readouterr().out
 
 
 def test_dry_run_does_not_build_missing_problems(tmp_path, monkeypatch, capsys):
     import precompute
 
     built = []
-    monkeypatch.setattr(sweep, "_missing_problems", lambda names: list(names))
+    monkeypatch.setattr(
+        sweep.experiments, "_missing_problems", lambda names: list(names)
+    )
     monkeypatch.setattr(precompute, "ensure", lambda *a, **k: built.append(a))
     args = ["--experiment", "prior_strength", "--dry-run", "--out", str(tmp_path)]
     code = sweep.main(args)
@@ -539,18 +613,20 @@ def test_dry_run_does_not_build_missing_problems(tmp_path, monkeypatch, capsys):
 
 def test_catalog_names_resolve_in_catalogue_order():
     catalog = pytest.importorskip("precompute.catalog")
-    got = sweep._resolve_names(["C3", "dexnet_adv", "bar_clamp"], catalog)
+    got = sweep.experiments._resolve_names(["C3", "dexnet_adv", "bar_clamp"], catalog)
     names = [n for n, _, _ in got]
     assert names[:13] == [i.name for i in catalog.objects("dexnet_adv")]
     assert names[13:] == ["C3"] and len(set(names)) == 14
     assert [oid for _, _, oid in got] == sorted(oid for _, _, oid in got)
     assert {s for _, s, _ in got} == {"dexnet_adv", "egad_eval"}
     with pytest.raises(sweep.SweepError, match="did you mean bar_clamp"):
-        sweep._resolve_names(["bar_clam"], catalog)
+        sweep.experiments._resolve_names(["bar_clam"], catalog)
     # Every object named by an experiment exists.
     for name in sweeps.EXPERIMENTS:
         mod = sweeps.get(name)
-        sweep._resolve_names(list(mod.OBJECTS) + list(mod.SMOKE_OBJECTS), catalog)
+        sweep.experiments._resolve_names(
+            list(mod.OBJECTS) + list(mod.SMOKE_OBJECTS), catalog
+        )
 
 
 def test_result_files_are_readable_by_others(tmp_path):
@@ -577,7 +653,7 @@ def test_identical_rollouts_are_copied_from_another_experiment(
     clean commit they are copied, not computed, and the tables are byte-identical
     to computing them; chunks that record active sets (case_study's LEGS) still
     run; a dirty tree, another commit or --no-reuse computes everything."""
-    monkeypatch.setattr(sweep, "_git_commit", lambda: dict(_CLEAN))
+    monkeypatch.setattr(sweep.store, "_git_commit", lambda: dict(_CLEAN))
     base = ["--problems", *probs, "--trials", "2", "--rollouts", "2"]
     base += ["--horizon", "200", "--methods", "legs", "tql"]
     exps = ["--experiment", "main", "case_study", "early_stopping"]
@@ -611,7 +687,7 @@ def test_identical_rollouts_are_copied_from_another_experiment(
 
     # Donors must come from the same clean commit as the running code.
     for git in ({**_CLEAN, "dirty": True}, {**_CLEAN, "commit": "beef" * 10}):
-        monkeypatch.setattr(sweep, "_git_commit", lambda git=git: dict(git))
+        monkeypatch.setattr(sweep.store, "_git_commit", lambda git=git: dict(git))
         fake_engine.clear()
         code, err = _cli(
             [*base, "--experiment", "early_stopping", "--out", str(out), "--overwrite"],
@@ -625,7 +701,7 @@ def test_identical_rollouts_are_copied_from_another_experiment(
 def test_reuse_needs_the_same_problem_file_and_configuration(
     tmp_path, fake_engine, capsys, monkeypatch
 ):
-    monkeypatch.setattr(sweep, "_git_commit", lambda: dict(_CLEAN))
+    monkeypatch.setattr(sweep.store, "_git_commit", lambda: dict(_CLEAN))
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
     a = _problems(tmp_path / "a", [("alpha", 3, 200)])

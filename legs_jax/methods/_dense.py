@@ -63,7 +63,9 @@ def select(st: DenseState, ctx: Ctx, cfg: Config, s, key):
     return i, i, (a, b, mask)
 
 
-def update(st: DenseState, ctx: Ctx, cfg: Config, s, grasp, slot, reward, live):
+def update(st, ctx: Ctx, cfg: Config, s, grasp, slot, reward, live):
+    """The Beta update of column ``slot`` of pose s (any state with ``alpha``,
+    ``beta`` and ``attempted`` [B, P, N]: a grasp id here, a slot in _slots)."""
     bi = jnp.arange(s.shape[0])
     was = st.attempted[bi, s, slot]
     win = (live & reward).astype(jnp.float32)
@@ -124,3 +126,8 @@ def prune(st: DenseState, ctx: Ctx, cfg: Config, s, live):
     gone = gone & live[:, None]
     removed = st.removed.at[bi, s].set(st.removed[bi, s] | gone)
     return st._replace(removed=removed), jnp.sum(gone, axis=-1, dtype=jnp.int32)
+
+
+# The functions a method built on this state shares (besides ``init``).
+_SHARED = (select, update, recommend, recommend_updated, recommend_init)
+FUNCTIONS = {f.__name__: f for f in (*_SHARED, estimates, candidates)}

@@ -105,3 +105,8 @@ def candidates_top(st: FixedState, ctx: Ctx, cfg: Config):
     nv = t.n_valid[ctx.ot]
     rank = jnp.argsort(t.order[ctx.ot], axis=-1)  # rank of each grasp in the q order
     return (rank < cfg.top) & (rank < nv[..., None])
+
+
+# The functions a method built on this state shares (besides ``init``).
+_SHARED = (select, update, recommend, recommend_init, estimates)
+FUNCTIONS = {f.__name__: f for f in _SHARED}

@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 
 from legs_jax import sampling
+from legs_jax.methods._dense import update  # the same Beta update, per slot
 from legs_jax.methods.base import (
     Config,
     Ctx,
@@ -56,19 +57,6 @@ def select(st: SlotState, ctx: Ctx, cfg: Config, s, key):
     grasp = argmin_id_of_max(phi, mask, gid, none=0)  # ties: lowest grasp id
     slot = jnp.argmax(gid == grasp[:, None], axis=-1).astype(jnp.int32)
     return grasp, slot, (a, b, gid)
-
-
-def update(st: SlotState, ctx: Ctx, cfg: Config, s, grasp, slot, reward, live):
-    bi = jnp.arange(s.shape[0])
-    was = st.attempted[bi, s, slot]
-    win = (live & reward).astype(jnp.float32)
-    loss = (live & ~reward).astype(jnp.float32)
-    st = st._replace(
-        alpha=st.alpha.at[bi, s, slot].add(win),
-        beta=st.beta.at[bi, s, slot].add(loss),
-        attempted=st.attempted.at[bi, s, slot].set(was | live),
-    )
-    return st, live & ~was
 
 
 def recommend(st: SlotState, ctx: Ctx, cfg: Config, s):
@@ -146,3 +134,8 @@ def prune_refill(st: SlotState, ctx: Ctx, cfg: Config, s, live):
         next=st.next.at[bi, s].set(jnp.minimum(nxt + n_gone, nv)),
     )
     return st, n_gone
+
+
+# The functions a method built on this state shares (besides ``init``).
+_SHARED = (select, update, recommend, recommend_updated, recommend_init)
+FUNCTIONS = {f.__name__: f for f in (*_SHARED, estimates, candidates)}

@@ -12,22 +12,34 @@ P poses, K grasps per pose, k active-set (slot) size.
 
 from __future__ import annotations
 
+import collections
 import dataclasses
-from collections.abc import Callable
+import functools
+import math
+from collections.abc import Callable, Mapping
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from legs_jax import sampling
+from legs_jax.errors import ConfigError
 
 __all__ = [
+    "COUNT",
+    "NON_NEGATIVE",
+    "PRIOR_RANGES",
     "Q_CLIP",
     "TOP_FIXED",
+    "UNIT",
+    "UNIT_OPEN",
+    "BetaPrior",
     "Config",
     "Ctx",
-    "HParams",
     "Method",
+    "Range",
+    "check_prior",
     "Tables",
     "argmax_first",
     "argmin_id_of_max",
@@ -57,15 +69,56 @@ class Tables(NamedTuple):
     topple_cdf: jax.Array  # [N, P, P] f32 cumulative topple rows
 
 
-class HParams(NamedTuple):
-    """The traced hyperparameters, one value per rollout."""
+class Range(NamedTuple):
+    """The valid values of one hyperparameter (an interval, maybe integers only)."""
 
-    s: jax.Array  # [B] prior strength
-    prior_offset: jax.Array  # [B] the +1 of SPEC §3
-    delta: jax.Array  # [B] confidence of the LEGS bounds
-    gamma: jax.Array  # [B] LEGS global threshold
-    epsilon: jax.Array  # [B] TQL exploration rate
-    eta: jax.Array  # [B] TQL learning rate
+    low: float = -math.inf
+    high: float = math.inf
+    low_open: bool = False  # low itself excluded
+    high_open: bool = False  # high itself excluded
+    integer: bool = False
+
+    def describe(self) -> str:
+        """The range in words, as error messages give it ("x must ...")."""
+        if self.integer:
+            return f"be an integer >= {self.low:g}"
+        if math.isinf(self.high):
+            return f"be {'>' if self.low_open else '>='} {self.low:g}"
+        lo = "(" if self.low_open else "["
+        hi = ")" if self.high_open else "]"
+        return f"lie in {lo}{self.low:g}, {self.high:g}{hi}"
+
+    def contains(self, x: float) -> bool:
+        if self.integer and float(x) != int(x):
+            return False
+        above = x > self.low if self.low_open else x >= self.low
+        below = x < self.high if self.high_open else x <= self.high
+        return bool(above and below)
+
+
+UNIT_OPEN = Range(0.0, 1.0, low_open=True, high_open=True)  # (0, 1)
+UNIT = Range(0.0, 1.0)  # [0, 1]
+NON_NEGATIVE = Range(0.0)  # [0, inf)
+COUNT = Range(1.0, integer=True)  # 1, 2, ...
+
+
+class BetaPrior(NamedTuple):
+    """Hyperparameters of the Beta prior of SPEC §3, shared by the Beta methods."""
+
+    s: float = 1.0  # prior strength
+    prior_offset: float = 1.0  # the +1 of SPEC §3
+
+
+PRIOR_RANGES = {"s": NON_NEGATIVE, "prior_offset": NON_NEGATIVE}
+
+
+def check_prior(hp: Mapping[str, np.ndarray], num_grasps: int | None) -> None:
+    """s = prior_offset = 0 would give Beta(0, 0) for untried grasps."""
+    if np.any((np.asarray(hp["s"]) == 0) & (np.asarray(hp["prior_offset"]) == 0)):
+        raise ConfigError(
+            "s = 0 with prior_offset = 0 gives Beta(0, 0) for untried grasps; "
+            "make one of them positive"
+        )
 
 
 class Ctx(NamedTuple):
@@ -73,17 +126,48 @@ class Ctx(NamedTuple):
 
     tables: Tables
     ot: jax.Array  # [B] i32 row of the tables of each rollout
-    hp: HParams
+    hp: Any  # the method's traced hyperparameters (its own NamedTuple), each [B]
 
 
-@dataclasses.dataclass(frozen=True)
 class Config:
-    """Static (shape-setting) configuration; one compile per distinct value."""
+    """Static (shape-setting) configuration; one compile per distinct value.
 
-    num_poses: int  # P
-    num_grasps: int  # K
-    k: int = 100  # LEGS active-set size
-    n: int = 100  # LEGS pruning period
+    ``Config(num_poses=P, num_grasps=K, k=100, n=100)``: P, K and the method's
+    static hyperparameters, read as attributes (``cfg.k``).
+    """
+
+    __slots__ = ("num_poses", "num_grasps", "static")
+
+    def __init__(self, num_poses: int, num_grasps: int, **static: int):
+        object.__setattr__(self, "num_poses", int(num_poses))
+        object.__setattr__(self, "num_grasps", int(num_grasps))
+        object.__setattr__(
+            self, "static", tuple(sorted((k, int(v)) for k, v in static.items()))
+        )
+
+    def __getattr__(self, name: str) -> int:
+        for k, v in object.__getattribute__(self, "static"):
+            if k == name:
+                return v
+        raise AttributeError(f"no static hyperparameter {name!r} in {self!r}")
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError("Config is immutable")
+
+    def _key(self) -> tuple:
+        return (self.num_poses, self.num_grasps, self.static)
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Config) and self._key() == other._key()
+
+    def __hash__(self) -> int:
+        return hash(self._key())
+
+    def __repr__(self) -> str:
+        extra = "".join(f", {k}={v}" for k, v in self.static)
+        return f"Config(num_poses={self.num_poses}, num_grasps={self.num_grasps}" + (
+            f"{extra})"
+        )
 
     @property
     def top(self) -> int:
@@ -91,9 +175,9 @@ class Config:
         return min(TOP_FIXED, self.num_grasps)
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, eq=False)
 class Method:
-    """One exploration method as pure functions over its own state.
+    """One exploration method: its pure functions and everything else about it.
 
     Every function takes the method state (a pytree with leading axis B), the
     :class:`Ctx` and the static :class:`Config`; ``s`` is the current pose [B].
@@ -109,7 +193,7 @@ class Method:
       learn from the outcome [B] bool; rows with ``live`` False must not change.
       ``new`` [B] bool: the (pose, grasp) had never been attempted.
     - ``prune`` (or None) ``(state, ctx, cfg, s, live) -> (state, removed)``: called
-      after the update of every step t ≡ 0 (mod n) for the pose just grasped;
+      after the update of every step t ≡ 0 (mod cfg.n) for the pose just grasped;
       ``removed`` [B] i32 counts the grasps taken out.
     - ``recommend(state, ctx, cfg, s) -> [B]``: π_t(s) for the pose just updated
       (a visited pose), a grasp id.
@@ -123,6 +207,22 @@ class Method:
       (for tests and conformance checks; not used in the loop).
     - ``active_set`` (or None) ``(state, ctx, cfg) -> [B, P, k]`` grasp ids, -1 for
       an empty slot.
+
+    Besides the functions a method declares its hyperparameters: ``hparams``, a
+    NamedTuple class whose fields are their names with their defaults;
+    ``ranges``, the valid :class:`Range` of each; ``static``, the names that set
+    shapes (read from :class:`Config`, one compile per value; the others are
+    traced, one value per rollout, so a grid of them is a batch axis); and
+    ``check`` (or None) ``(hp, num_grasps)``, which refuses combinations
+    (``hp`` maps every name to an array over the grid points; ``num_grasps`` K is
+    None where the problems are not known yet) with a
+    :class:`legs_jax.errors.ConfigError`. ``label`` names it in tables and
+    figures, ``short_label`` in narrow tables, ``style`` its line in figures;
+    ``oracle`` marks a row that reads the ground truth (not a method, never a
+    competitor); ``cost(cfg)`` is the number of candidate grasps a step touches
+    (planning) and ``dense`` says its per-step work and state are O(K) (smaller
+    batches suit it). ``reference`` (or None) ``(problem, trial, hp)`` builds its
+    one-rollout NumPy twin (:mod:`legs_jax.reference`).
     """
 
     name: str
@@ -138,6 +238,41 @@ class Method:
     active_set: Callable[..., jax.Array] | None = None
     recommend_updated: Callable[..., jax.Array] | None = None
     learns: bool = True  # False for the constant rows (Dex-Net, K100 UB)
+    hparams: type = BetaPrior
+    ranges: Mapping[str, Range] = dataclasses.field(
+        default_factory=lambda: dict(PRIOR_RANGES)
+    )
+    static: tuple[str, ...] = ()
+    check: Callable[[Mapping[str, np.ndarray], int | None], None] | None = check_prior
+    label: str = ""
+    short_label: str = ""
+    style: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    oracle: bool = False
+    cost: Callable[[Config], float] = lambda cfg: float(cfg.num_grasps)
+    dense: bool = False
+    reference: Callable[..., Any] | None = None
+
+    def defaults(self) -> dict[str, float | int]:
+        """Every hyperparameter with its default."""
+        return dict(self.hparams()._asdict())
+
+    @property
+    def traced(self) -> tuple[str, ...]:
+        """The traced hyperparameters, in declaration order."""
+        return tuple(n for n in self.hparams._fields if n not in self.static)
+
+    def traced_hparams(self, **arrays: Any) -> Any:
+        """The NamedTuple of traced hyperparameters the functions read as
+        ``ctx.hp`` (``cfg`` holds the static ones)."""
+        return _traced_type(self.hparams, self.static)(**arrays)
+
+
+@functools.cache
+def _traced_type(hparams: type, static: tuple[str, ...]) -> type:
+    names = tuple(n for n in hparams._fields if n not in static)
+    if names == tuple(hparams._fields):
+        return hparams
+    return collections.namedtuple(f"{hparams.__name__}Traced", names)
 
 
 # ----------------------------------------------------------------------- helpers
@@ -195,7 +330,7 @@ def _col(v: jax.Array, ndim: int) -> jax.Array:
     return v.reshape(v.shape + (1,) * (ndim - 1))
 
 
-def posterior_prior(q: jax.Array, hp: HParams) -> tuple[jax.Array, jax.Array]:
+def posterior_prior(q: jax.Array, hp: Any) -> tuple[jax.Array, jax.Array]:
     """α, β of the prior of SPEC §3 for grasps of quality q ([B, ...]).
 
     α = prior_offset + s·q_c, β = prior_offset + s·(1 − q_c), q_c = clip(q).

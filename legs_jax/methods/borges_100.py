@@ -1,17 +1,17 @@
 """BORGES (K=100): Thompson sampling over the fixed top-100 grasps by q (SPEC §4)."""
 
+from legs_jax import reference as ref
 from legs_jax.methods import _slots
-from legs_jax.methods.base import Method
+from legs_jax.methods.base import TOP_FIXED, Method
 
 METHOD = Method(
     name="borges_100",
     description="BORGES (K=100): Thompson sampling over the top-100 by prior",
+    **_slots.FUNCTIONS,
     init=lambda ctx, cfg: _slots.init(ctx, cfg, cfg.top, refill=False),
-    select=_slots.select,
-    update=_slots.update,
-    recommend=_slots.recommend,
-    recommend_updated=_slots.recommend_updated,
-    recommend_init=_slots.recommend_init,
-    estimates=_slots.estimates,
-    candidates=_slots.candidates,
+    label="BORGES (K_s=100)",
+    short_label="BORGES-100",
+    style=dict(color="#ff7f0e", ls="-", lw=1.6),
+    cost=lambda cfg: float(cfg.top),
+    reference=lambda problem, trial, hp: ref.Borges(problem, trial, hp, top=TOP_FIXED),
 )

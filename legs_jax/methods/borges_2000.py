@@ -1,17 +1,17 @@
 """BORGES (K=2000): Thompson sampling over every grasp of the pose (SPEC §4)."""
 
+from legs_jax import reference as ref
 from legs_jax.methods import _dense
 from legs_jax.methods.base import Method
 
 METHOD = Method(
     name="borges_2000",
     description="BORGES (K=2000): Thompson sampling over all K grasps",
+    **_dense.FUNCTIONS,
     init=lambda ctx, cfg: _dense.init(ctx, cfg, removable=False),
-    select=_dense.select,
-    update=_dense.update,
-    recommend=_dense.recommend,
-    recommend_updated=_dense.recommend_updated,
-    recommend_init=_dense.recommend_init,
-    estimates=_dense.estimates,
-    candidates=_dense.candidates,
+    label="BORGES (K_s=2000)",
+    short_label="BORGES-2000",
+    style=dict(color="#2ca02c", ls="-", lw=1.6),
+    dense=True,
+    reference=lambda problem, trial, hp: ref.Borges(problem, trial, hp, top=None),
 )

@@ -5,18 +5,22 @@ Beta posterior of all K grasps (learning only from the fixed grasp) serves the
 Dirichlet check.
 """
 
+from legs_jax import reference as ref
 from legs_jax.methods import _fixed
 from legs_jax.methods.base import Method
 
 METHOD = Method(
     name="dexnet",
     description="Dex-Net: argmax prior, no exploration (constant gap)",
+    **_fixed.FUNCTIONS,
     init=lambda ctx, cfg: _fixed.init(ctx, cfg, which="dexnet"),
-    select=_fixed.select,
-    update=_fixed.update,
-    recommend=_fixed.recommend,
-    recommend_init=_fixed.recommend_init,
-    estimates=_fixed.estimates,
     candidates=_fixed.candidates_dexnet,
     learns=False,
+    label="Dex-Net (synthetic prior)",
+    short_label="Dex-Net*",
+    style=dict(color="#7f7f7f", ls="--", lw=1.6),
+    cost=lambda cfg: 1.0,
+    reference=lambda problem, trial, hp: ref.Fixed(
+        problem, trial, hp, ref.prior_choice(problem, trial)
+    ),
 )

@@ -3,18 +3,27 @@ top-100 by prior q (SPEC §4). An oracle row, not a method; its gap is constant 
 bounds what BORGES (K=100) can reach.
 """
 
+from legs_jax import reference as ref
 from legs_jax.methods import _fixed
-from legs_jax.methods.base import Method
+from legs_jax.methods.base import TOP_FIXED, Method
 
 METHOD = Method(
     name="k100_ub",
     description="K100 upper bound: best true grasp of the top-100 by prior (oracle)",
+    **_fixed.FUNCTIONS,
     init=lambda ctx, cfg: _fixed.init(ctx, cfg, which="k100_ub"),
-    select=_fixed.select,
-    update=_fixed.update,
-    recommend=_fixed.recommend,
-    recommend_init=_fixed.recommend_init,
-    estimates=_fixed.estimates,
     candidates=_fixed.candidates_top,
     learns=False,
+    label="K_s=100 upper bound",
+    short_label="K100-UB",
+    style=dict(color="#000000", ls=":", lw=1.6),
+    oracle=True,
+    cost=lambda cfg: 1.0,
+    reference=lambda problem, trial, hp: ref.Fixed(
+        problem,
+        trial,
+        hp,
+        ref.top_truth_choice(problem, trial, TOP_FIXED),
+        top=TOP_FIXED,
+    ),
 )

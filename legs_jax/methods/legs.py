@@ -8,25 +8,69 @@ one pose as a pure function of the state; :func:`legs_jax.methods.base.prune_mas
 is the removal set alone.
 """
 
-from legs_jax.methods import _slots
-from legs_jax.methods.base import Method, prune_mask
+from typing import NamedTuple
 
-__all__ = ["METHOD", "SlotState", "prune", "prune_mask"]
+import numpy as np
+
+from legs_jax import reference as ref
+from legs_jax.errors import ConfigError
+from legs_jax.methods import _slots
+from legs_jax.methods.base import (
+    COUNT,
+    PRIOR_RANGES,
+    UNIT_OPEN,
+    Method,
+    check_prior,
+    prune_mask,
+)
+
+__all__ = ["METHOD", "LegsHParams", "SlotState", "prune", "prune_mask"]
 
 SlotState = _slots.SlotState
 prune = _slots.prune_refill
 
+
+class LegsHParams(NamedTuple):
+    s: float = 1.0  # prior strength
+    prior_offset: float = 1.0  # the +1 of SPEC §3
+    delta: float = 0.05  # confidence of the pruning bounds
+    gamma: float = 0.2  # global threshold
+    k: int = 100  # active-set size (static)
+    n: int = 100  # pruning period (static)
+
+
+RANGES = {
+    **PRIOR_RANGES,
+    "delta": UNIT_OPEN,
+    "gamma": UNIT_OPEN,
+    "k": COUNT,
+    "n": COUNT,
+}
+
+
+def check(hp, num_grasps):
+    check_prior(hp, num_grasps)
+    if num_grasps is not None and np.any(hp["k"] > num_grasps):
+        raise ConfigError(
+            f"k = {int(np.max(hp['k']))} exceeds the K = {num_grasps} grasps per pose "
+            "of the problems"
+        )
+
+
 METHOD = Method(
     name="legs",
     description="LEGS: active set of k grasps, pruned and refilled",
+    **_slots.FUNCTIONS,
     init=lambda ctx, cfg: _slots.init(ctx, cfg, cfg.k, refill=True),
-    select=_slots.select,
-    update=_slots.update,
-    recommend=_slots.recommend,
-    recommend_updated=_slots.recommend_updated,
-    recommend_init=_slots.recommend_init,
-    estimates=_slots.estimates,
-    candidates=_slots.candidates,
     prune=_slots.prune_refill,
     active_set=_slots.active_set,
+    hparams=LegsHParams,
+    ranges=RANGES,
+    static=("k", "n"),
+    check=check,
+    label="LEGS",
+    short_label="LEGS",
+    style=dict(color="#d62728", ls="-", lw=2.4),
+    cost=lambda cfg: float(min(cfg.k, cfg.num_grasps)),
+    reference=ref.Legs,
 )

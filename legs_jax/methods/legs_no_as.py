@@ -1,19 +1,33 @@
 """LEGS(-AS): Thompson sampling over all K grasps, pruned by the LEGS rule of SPEC §4
 every n steps (the pose just grasped), with no refill."""
 
+from typing import NamedTuple
+
+from legs_jax import reference as ref
 from legs_jax.methods import _dense
-from legs_jax.methods.base import Method
+from legs_jax.methods.base import COUNT, PRIOR_RANGES, UNIT_OPEN, Method
+
+
+class LegsNoASHParams(NamedTuple):
+    s: float = 1.0  # prior strength
+    prior_offset: float = 1.0  # the +1 of SPEC §3
+    delta: float = 0.05  # confidence of the pruning bounds
+    gamma: float = 0.2  # global threshold
+    n: int = 100  # pruning period (static)
+
 
 METHOD = Method(
     name="legs_no_as",
     description="LEGS(-AS): all K grasps, LEGS pruning, no active set",
+    **_dense.FUNCTIONS,
     init=lambda ctx, cfg: _dense.init(ctx, cfg, removable=True),
-    select=_dense.select,
-    update=_dense.update,
-    recommend=_dense.recommend,
-    recommend_updated=_dense.recommend_updated,
-    recommend_init=_dense.recommend_init,
-    estimates=_dense.estimates,
-    candidates=_dense.candidates,
     prune=_dense.prune,
+    hparams=LegsNoASHParams,
+    ranges={**PRIOR_RANGES, "delta": UNIT_OPEN, "gamma": UNIT_OPEN, "n": COUNT},
+    static=("n",),
+    label="LEGS(-AS)",
+    short_label="LEGS(-AS)",
+    style=dict(color="#1f77b4", ls="-", lw=1.6),
+    dense=True,
+    reference=ref.LegsNoAS,
 )

@@ -8,7 +8,9 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from legs_jax import reference as ref
 from legs_jax.methods.base import (
+    UNIT,
     Config,
     Ctx,
     Method,
@@ -16,6 +18,11 @@ from legs_jax.methods.base import (
     gather_at,
     updated_row,
 )
+
+
+class TQLHParams(NamedTuple):
+    epsilon: float = 0.1  # exploration rate
+    eta: float = 0.1  # learning rate
 
 
 class TQLState(NamedTuple):
@@ -96,4 +103,13 @@ METHOD = Method(
     recommend_init=recommend_init,
     estimates=estimates,
     candidates=candidates,
+    hparams=TQLHParams,
+    ranges={"epsilon": UNIT, "eta": UNIT},
+    check=None,
+    label="TQL",
+    short_label="TQL",
+    style=dict(color="#9467bd", ls="-", lw=1.6),
+    cost=lambda cfg: cfg.num_grasps / 8.0,  # no sampling: a masked argmax
+    dense=True,
+    reference=ref.TQL,
 )

@@ -1,0 +1,175 @@
+"""Conformance checks every method passes, ours and the user's.
+
+:func:`check_declaration` looks at a :class:`~legs_jax.methods.base.Method`
+without running it (the functions are callables, the hyperparameters a NamedTuple
+with defaults inside their declared ranges, the static ones among them);
+:func:`check` runs it on a small synthetic problem with padded poses and grasps,
+invalid grasps and a pose without any valid grasp, under ``jit`` and under
+``jit(vmap)`` over a grid of hyperparameters, and checks that one program serves
+new keys and values (it compiles once), that it never selects a masked grasp or
+one outside its own candidate set, and that its outputs are finite and its
+counters consistent. :func:`legs_jax.methods.resolve` runs the first on a method
+from the user's module; the sweep runs both.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from typing import Any
+
+import numpy as np
+
+from legs_jax.errors import ConfigError
+from legs_jax.methods.base import Method
+
+__all__ = ["check", "check_declaration"]
+
+_FUNCTIONS = (
+    "init",
+    "select",
+    "update",
+    "recommend",
+    "recommend_init",
+    "estimates",
+    "candidates",
+)
+
+
+def check_declaration(method: Any, where: str = "") -> None:
+    """Refuse a malformed method declaration with a :class:`ConfigError`."""
+    at = f"method {where or getattr(method, 'name', method)!r}"
+    if not isinstance(method, Method):
+        raise ConfigError(
+            f"{at} is a {type(method).__name__}, not a legs_jax.methods.base.Method"
+        )
+    if not isinstance(method.name, str) or not method.name.isidentifier():
+        raise ConfigError(f"{at}: its name must be an identifier, got {method.name!r}")
+    for f in _FUNCTIONS:
+        if not callable(getattr(method, f)):
+            raise ConfigError(f"{at}: {f} is not callable")
+    for f in ("prune", "active_set", "recommend_updated", "reference", "check"):
+        v = getattr(method, f)
+        if v is not None and not callable(v):
+            raise ConfigError(f"{at}: {f} must be callable or None")
+    hp = method.hparams
+    fields = getattr(hp, "_fields", None)
+    if not isinstance(hp, type) or fields is None:
+        raise ConfigError(f"{at}: hparams must be a NamedTuple class")
+    missing = [n for n in fields if n not in hp._field_defaults]
+    if missing:
+        raise ConfigError(f"{at}: hyperparameter(s) without a default: {missing}")
+    for n in list(method.ranges) + list(method.static):
+        if n not in fields:
+            raise ConfigError(f"{at}: {n} is not a field of {hp.__name__}")
+    for n, v in hp._field_defaults.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ConfigError(f"{at}: the default of {n} must be a number, got {v!r}")
+        rng = method.ranges.get(n)
+        if not math.isfinite(v) or (rng is not None and not rng.contains(v)):
+            raise ConfigError(f"{at}: the default {n} = {v!r} is outside its range")
+    for n in method.static:
+        rng = method.ranges.get(n)
+        if rng is None or not rng.integer:
+            raise ConfigError(f"{at}: static {n} needs an integer range")
+
+
+@functools.cache
+def _setup():
+    """Tables of a padded problem: 3 real poses (one without any valid grasp)
+    padded to 4, 150 grasps padded to 160, 30 % invalid grasps, 2 trials."""
+    import jax
+    import jax.numpy as jnp
+
+    from legs_jax import engine
+    from legs_jax.problem import stack
+    from legs_jax.synthetic import make_problem
+
+    pb = make_problem(
+        5, num_poses=3, num_grasps=150, num_trials=2, invalid_fraction=0.3,
+        topple_stay=0.5, good_fraction=0.05,
+    )  # fmt: skip
+    valid = pb.valid.copy()
+    valid[:, 2] = False
+    pb = dataclasses.replace(
+        pb,
+        valid=valid,
+        robustness=np.where(valid, pb.robustness, 0).astype(np.float32),
+        prior=np.where(valid, pb.prior, 0).astype(np.float32),
+    ).validate()
+    batch = stack([pb], num_poses=4, num_grasps=160)
+    return jax.tree.map(jnp.asarray, engine.make_tables(batch, [0, 1]))
+
+
+def _fail(method: Method, what: str) -> None:
+    raise ConfigError(f"method {method.name} fails its conformance check: {what}")
+
+
+def check(method: Method, horizon: int = 120, rollouts: int = 8) -> None:
+    """Run ``method`` and refuse it (:class:`ConfigError` naming what failed)
+    unless it conforms (module docstring)."""
+    import jax
+    import jax.numpy as jnp
+
+    from legs_jax import engine, keys
+    from legs_jax.methods.base import Config
+
+    check_declaration(method)
+    tables = _setup()
+    defaults = method.defaults()
+    static = {n: min(int(defaults[n]), 20) for n in method.static}
+    cfg = Config(num_poses=4, num_grasps=160, **static)
+    b = rollouts
+    ot = jnp.asarray(np.arange(b) % 2, jnp.int32)
+
+    def hparams(g: int | None):
+        vals = {}
+        for n in method.traced:
+            v = np.float32(defaults[n])
+            vals[n] = jnp.full((b,) if g is None else (g, b), v, jnp.float32)
+        return method.traced_hparams(**vals)
+
+    try:
+        fn = engine.compiled(method, cfg, horizon, check_every=40, trajectory=True)
+        before = sum(engine.trace_counts().values())
+        outs = []
+        for i in range(2):
+            ks = keys.rollout_keys(i, np.full(b, 7), np.arange(b) % 2, np.arange(b))
+            outs.append(jax.device_get(fn(tables, ot, ks, hparams(None))))
+        vfn = engine.compiled(
+            method, cfg, horizon, check_every=40, trajectory=True, grid=True
+        )
+        r = np.arange(2 * b)
+        ks = keys.rollout_keys(2, np.full(2 * b, 7), r % 2, r)
+        outs.append(jax.device_get(vfn(tables, ot, ks.reshape(2, b), hparams(2))))
+    except ConfigError:
+        raise
+    except Exception as e:  # noqa: BLE001 - any failure of user code, in one line
+        _fail(method, f"running it raised {type(e).__name__}: {e}")
+    if sum(engine.trace_counts().values()) - before > 2 or fn._cache_size() != 1:
+        _fail(method, "new keys or hyperparameter values recompiled it")
+    valid = np.asarray(tables.valid)
+    for o in outs:
+        o = {k: np.asarray(v) for k, v in o.items()}
+        for k, v in o.items():
+            if v.dtype.kind == "f" and not np.all(np.isfinite(v)):
+                _fail(method, f"{k} is not finite")
+        pose, grasp, live = o["pose"], o["grasp"], o["live"]
+        ot_ = np.broadcast_to(np.asarray(ot)[:, None], pose.shape)
+        if not np.array_equal(live, valid[ot_, pose].any(-1)):
+            _fail(method, "a step was live at a pose without a valid grasp")
+        g = np.where(live, grasp, 0)
+        if not np.all(valid[ot_, pose, g][live]):
+            _fail(method, "it selected a masked (invalid or padded) grasp")
+        if not np.all(o["in_candidates"]):
+            _fail(method, "it selected a grasp outside its own candidate set")
+        if np.any(o["reward"][~live]):
+            _fail(method, "a reward at a pose without a valid grasp")
+        if not np.all(o["successes"] == o["reward"].sum(-1)):
+            _fail(method, "its successes do not match its rewards")
+        if not np.all(o["gaps"] >= -1e-6):
+            _fail(method, "a negative gap")
+        est = (o["check_p_lower"], o["check_true_performance"])
+        if any(np.any((x < 0) | (x > 1 + 1e-6)) for x in est):
+            _fail(method, "a stopping bound or performance outside [0, 1]")

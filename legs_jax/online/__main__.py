@@ -1,0 +1,3 @@
+from legs_jax.online.cli import main
+
+raise SystemExit(main())

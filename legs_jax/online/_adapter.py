@@ -1,0 +1,252 @@
+"""The one place where the online session touches the engine and the methods.
+
+A session is one rollout (B = 1) of the batched engine's step, cut at the point
+where the world answers: :meth:`Loop.select` is the engine's ``select`` and
+:meth:`Loop.tell` its ``update`` → prune when t ≡ 0 (mod n) → recommendation of
+the pose just grasped, in the engine's order and with the engine's key streams
+(method draws of step t from ``fold_in(method_key, t)``, check c from
+``fold_in(check_key, c)``). The Dirichlet bound is
+:func:`legs_jax.engine.dirichlet_quantiles`. Every function is jitted once per
+(method, pose capacity P, reservoir size K, k, n).
+
+Poses appear during a session. The tables hold a fixed capacity of P poses; a
+pose without a reservoir has no valid grasp. When a pose gets its reservoir the
+method's state is initialised again on the new tables and that pose's rows (every
+state leaf whose axis 1 has length P) are copied into the running state; the rest
+of the state is kept. For the registered methods this equals having known the
+pose's reservoir from step 0, since ``init`` treats poses independently.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Mapping
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from legs_jax import engine
+from legs_jax import keys as keys_mod
+from legs_jax import methods as methods_mod
+from legs_jax.errors import ConfigError
+from legs_jax.methods.base import Config, Ctx, HParams, Tables
+
+__all__ = ["ORACLES", "Loop", "method_names", "check_hparams"]
+
+# Methods that read the ground truth p: they cannot run on a robot.
+ORACLES = ("k100_ub",)
+
+
+def method_names() -> tuple[str, ...]:
+    """Registered methods that can run online (every one but the oracles)."""
+    return tuple(m for m in methods_mod.names() if m not in ORACLES)
+
+
+def check_hparams(method: str, hparams: Mapping | None, K: int) -> dict:
+    """Validated hyperparameters (the engine's rules), one value each."""
+    if method in ORACLES:
+        raise ConfigError(
+            f"{method} reads the ground-truth success probabilities and cannot run "
+            f"on a robot; choose one of {', '.join(method_names())}"
+        )
+    if method not in method_names():
+        raise ConfigError(
+            f"unknown method {method!r}; choose one of {', '.join(method_names())}"
+        )
+    for name, v in (hparams or {}).items():
+        if not isinstance(v, (int, float)) or isinstance(v, bool):
+            raise ConfigError(f"hyperparameter {name} must be a number, got {v!r}")
+    _, hp = engine._hparam_grid(method, dict(hparams or {}), K)
+    return {
+        name: (
+            int(hp[name][0]) if name in engine.STATIC_HPARAMS else float(hp[name][0])
+        )
+        for name in engine.HPARAM_DEFAULTS
+    }
+
+
+def _order(q: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    key = np.where(valid, -q.astype(np.float64), np.inf)
+    return np.argsort(key, axis=-1, kind="stable").astype(np.int32)
+
+
+@functools.lru_cache(maxsize=32)
+def _programs(method: str, cfg: Config):
+    m = methods_mod.get(method)
+    P = cfg.num_poses
+
+    def ctx(tables, hp):
+        return Ctx(tables, jnp.zeros(1, jnp.int32), hp)
+
+    def init(tables, hp):
+        c = ctx(tables, hp)
+        ms = m.init(c, cfg)
+        rec = m.recommend_init(ms, c, cfg).astype(jnp.int32)
+        return ms, rec
+
+    def reinit_pose(ms, rec, tables, hp, s):
+        c = ctx(tables, hp)
+        fresh = m.init(c, cfg)
+        rec0 = m.recommend_init(fresh, c, cfg).astype(jnp.int32)
+
+        def splice(old, new):
+            if old.ndim >= 2 and old.shape[1] == P:
+                return old.at[:, s].set(new[:, s])
+            return old
+
+        return jax.tree.map(splice, ms, fresh), rec.at[:, s].set(rec0[:, s])
+
+    def select(ms, tables, hp, s, key):
+        grasp, slot, _ = m.select(ms, ctx(tables, hp), cfg, s, key)
+        return grasp, slot
+
+    def tell(ms, rec, tables, hp, s, grasp, slot, reward, t):
+        c = ctx(tables, hp)
+        live = tables.n_valid[0, s] > 0
+        reward = reward & live
+        ms, new = m.update(ms, c, cfg, s, grasp, slot, reward, live)
+        removed = jnp.zeros(1, jnp.int32)
+        if m.prune is not None:
+            ms, removed = jax.lax.cond(
+                t % cfg.n == 0,
+                lambda st: m.prune(st, c, cfg, s, live),
+                lambda st: (st, jnp.zeros(1, jnp.int32)),
+                ms,
+            )
+        if m.learns:
+            rec_s = m.recommend(ms, c, cfg, s)
+            rec = rec.at[0, s[0]].set(jnp.where(live[0], rec_s[0], rec[0, s[0]]))
+        return ms, rec, new, removed
+
+    def estimates(ms, tables, hp):
+        return m.estimates(ms, ctx(tables, hp), cfg)
+
+    def bound(key, counts, observed, values):
+        return engine.dirichlet_quantiles(
+            key,
+            counts,
+            observed,
+            values,
+            engine.DELTA_STOP,
+            engine.NUM_DIRICHLET_SAMPLES,
+        )
+
+    return dict(
+        init=jax.jit(init),
+        reinit_pose=jax.jit(reinit_pose),
+        select=jax.jit(select),
+        tell=jax.jit(tell),
+        estimates=jax.jit(estimates),
+        bound=jax.jit(bound),
+    )
+
+
+class Loop:
+    """One rollout of ``method`` on P pose slots of K grasps each (host side).
+
+    Args:
+      method: a registered method (not an oracle).
+      num_poses: the pose capacity P.
+      num_grasps: the reservoir size K.
+      hparams: overrides of :data:`legs_jax.engine.HPARAM_DEFAULTS`.
+      rollout_key: a typed key (:func:`legs_jax.keys.rollout_key`).
+    """
+
+    def __init__(self, method, num_poses, num_grasps, hparams, rollout_key):
+        self.method = method
+        self.hp_values = check_hparams(method, hparams, num_grasps)
+        self.cfg = Config(
+            num_poses=int(num_poses),
+            num_grasps=int(num_grasps),
+            k=self.hp_values["k"],
+            n=self.hp_values["n"],
+        )
+        self.hp = HParams(
+            *(
+                jnp.full(1, self.hp_values[n], jnp.float32)
+                for n in engine.TRACED_HPARAMS
+            )
+        )
+        P, K = self.cfg.num_poses, self.cfg.num_grasps
+        self.q = np.zeros((P, K), np.float32)
+        self.valid = np.zeros((P, K), bool)
+        self._fn = _programs(method, self.cfg)
+        self._method_key = keys_mod.method_key(rollout_key[None])
+        self._check_key = keys_mod.check_key(rollout_key[None])
+        self._tables = self._make_tables()
+        self.state, self.rec = self._fn["init"](self._tables, self.hp)
+
+    def _make_tables(self) -> Tables:
+        P, K = self.q.shape
+        q = np.where(self.valid, self.q, 0.0).astype(np.float32)
+        zeros_p = np.zeros((1, P), np.float32)
+        return Tables(
+            p=jnp.zeros((1, P, K), jnp.float32),  # unknown on a robot; never read
+            q=jnp.asarray(q[None]),
+            valid=jnp.asarray(self.valid[None]),
+            order=jnp.asarray(_order(q, self.valid)[None]),
+            n_valid=jnp.asarray(self.valid.sum(-1).astype(np.int32)[None]),
+            p_star=jnp.asarray(zeros_p),
+            landing=jnp.asarray(zeros_p),
+            landing_cdf=jnp.asarray(zeros_p),
+            topple_cdf=jnp.zeros((1, P, P), jnp.float32),
+        )
+
+    def set_reservoir(self, s: int, q: np.ndarray, valid: np.ndarray) -> None:
+        """Give pose slot ``s`` its reservoir: prior qualities q [K], valid [K]."""
+        self.q[s] = np.where(valid, q, 0.0)
+        self.valid[s] = valid
+        self._tables = self._make_tables()
+        self.state, self.rec = self._fn["reinit_pose"](
+            self.state, self.rec, self._tables, self.hp, jnp.int32(s)
+        )
+
+    def n_valid(self, s: int) -> int:
+        return int(self.valid[s].sum())
+
+    def select(self, s: int, t: int) -> tuple[int, int]:
+        """(grasp id, method slot) to execute at step t in pose s."""
+        key = keys_mod.step_keys(self._method_key, t)
+        g, slot = self._fn["select"](
+            self.state, self._tables, self.hp, jnp.full(1, s, jnp.int32), key
+        )
+        return int(g[0]), int(slot[0])
+
+    def tell(self, s: int, grasp: int, slot: int, success: bool, t: int) -> dict:
+        """Learn the outcome of step t; returns the engine's counters of the step."""
+        self.state, self.rec, new, removed = self._fn["tell"](
+            self.state,
+            self.rec,
+            self._tables,
+            self.hp,
+            jnp.full(1, s, jnp.int32),
+            jnp.full(1, grasp, jnp.int32),
+            jnp.full(1, slot, jnp.int32),
+            jnp.full(1, bool(success)),
+            jnp.int32(t),
+        )
+        return {"new": bool(new[0]), "removed": int(removed[0])}
+
+    def recommendation(self) -> np.ndarray:
+        """[P] π_t: the recommended grasp id of each pose (-1 none)."""
+        return np.asarray(self.rec[0])
+
+    def estimates(self) -> tuple[np.ndarray, np.ndarray]:
+        """([P], [P]) p̂*_s over all candidates and over attempted ones."""
+        a, b = self._fn["estimates"](self.state, self._tables, self.hp)
+        return np.asarray(a[0]), np.asarray(b[0])
+
+    def bound(self, counts: np.ndarray, observed: np.ndarray, check: int) -> tuple:
+        """(p̂_ℓ over all candidates, over attempted ones) from drop counts [P] and
+        the observed poses [P]; check number ``check`` picks the draws."""
+        v_all, v_att = self._fn["estimates"](self.state, self._tables, self.hp)
+        key = keys_mod.step_keys(self._check_key, check)
+        values = jnp.stack([v_all, v_att], axis=1).astype(jnp.float32)
+        lo = self._fn["bound"](
+            key,
+            jnp.asarray(counts, jnp.float32)[None],
+            jnp.asarray(observed, bool)[None],
+            values,
+        )
+        return float(lo[0, 0]), float(lo[0, 1])

@@ -1,0 +1,383 @@
+"""``python -m legs_jax.online``: serve a session, simulate one, measure recognition."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from legs_jax.errors import ConfigError
+from legs_jax.online.errors import InputError, OrderError, StateError
+
+_DESCRIPTION = """\
+LEGS on a robot: an online exploration session over depth images.
+
+Commands:
+  serve DIR       drive a session from a robot program: JSON requests on stdin,
+                  one JSON response per line on stdout (see the README, "On a
+                  robot"). Creates the session in DIR, or resumes the one there
+                  with every recorded outcome.
+  simulate        run a session against the simulated robot (depth rendering
+                  and grasp physics of precompute/), write it to --out with a
+                  learning-curve figure; --resume continues a killed run.
+  recognition-table
+                  pose recognition on simulated views of objects: the fraction
+                  of views assigned the right pose and of duplicate new poses.
+  agreement       the simulated loop against the batched engine on a problem.
+  bench           time ask+tell, recognition of a 640x480 image and a new
+                  pose's reservoir.
+
+Run "python -m legs_jax.online COMMAND --help" for a command's options.
+"""
+
+
+def _session_args(p: argparse.ArgumentParser) -> None:
+    from legs_jax.online._adapter import method_names
+
+    p.add_argument(
+        "--method",
+        default="legs",
+        help=f"exploration method: {', '.join(method_names())} (default legs)",
+    )
+    p.add_argument("--seed", type=int, default=0, help="seed of the method's draws (0)")
+    p.add_argument(
+        "--max-poses", type=int, default=24, help="pose capacity of the session (24)"
+    )
+    p.add_argument(
+        "--reservoir",
+        type=int,
+        default=2000,
+        help="grasps sampled for each new pose (2000)",
+    )
+    p.add_argument(
+        "--hparam",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="method hyperparameter (s, prior_offset, delta, gamma, epsilon, eta, "
+        "k, n), repeatable",
+    )
+
+
+def _cache_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--compile-cache",
+        metavar="DIR",
+        help="JAX persistent compilation cache, so that a restarted session skips "
+        "compiling (default $JAX_COMPILATION_CACHE_DIR, else "
+        "$XDG_CACHE_HOME/legs_jax/jax or ~/.cache/legs_jax/jax; 'off' disables)",
+    )
+
+
+def _compile_cache(option: str | None) -> None:
+    """Turn on JAX's persistent compilation cache (results do not depend on it)."""
+    import os
+
+    if option == "off":
+        return
+    path = option or os.environ.get("JAX_COMPILATION_CACHE_DIR")
+    if not path:
+        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(
+            os.path.expanduser("~"), ".cache"
+        )
+        path = os.path.join(base, "legs_jax", "jax")
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError:
+        return  # a read-only home: run without the cache
+    import jax
+
+    jax.config.update("jax_compilation_cache_dir", path)
+
+
+def _hparams(items) -> dict:
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep:
+            raise InputError(f"--hparam takes NAME=VALUE, got {item!r}")
+        try:
+            v = float(value)
+        except ValueError:
+            raise InputError(f"--hparam {name}: {value!r} is not a number") from None
+        out[name] = int(v) if name in ("k", "n") and v.is_integer() else v
+    return out
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m legs_jax.online",
+        description=_DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    p = sub.add_parser(
+        "serve",
+        help="drive a session with JSON lines on stdin/stdout",
+        description="Serve the session in DIR over stdin/stdout, one JSON object "
+        "per line (requests: observe, ask, tell, bound, status, quit). The "
+        "session is created when DIR holds none (with the options below) and "
+        "resumed otherwise. Every outcome is on disk before its response is "
+        "written.",
+    )
+    p.add_argument("dir", type=Path, help="session folder")
+    _session_args(p)
+    p.add_argument(
+        "--camera-height",
+        type=float,
+        default=0.7,
+        help="a camera straight above the table origin at this height (m); "
+        "use --camera-pose for any other mounting (0.7)",
+    )
+    p.add_argument(
+        "--camera-pose",
+        type=Path,
+        help="a .npy 4x4 camera -> table transform (table plane z = 0, z up)",
+    )
+    _cache_arg(p)
+
+    p = sub.add_parser(
+        "simulate",
+        help="run a session against the simulated robot",
+        description="Run a session against the simulated robot: noisy depth images "
+        "of the object in a stable pose at a random place and yaw, grasps executed "
+        "with the perturbed physics of precompute/, drops and topples with the "
+        "object's landing and topple probabilities. Writes the session, "
+        "curve.jsonl and learning_curve.png to --out.",
+    )
+    p.add_argument("--object", required=True, help="catalogue object, e.g. bar_clamp")
+    p.add_argument("--steps", type=int, default=1000, help="grasp attempts (1000)")
+    p.add_argument("--out", type=Path, required=True, help="session folder")
+    p.add_argument(
+        "--resume", action="store_true", help="continue the (killed) run in --out"
+    )
+    p.add_argument(
+        "--problem",
+        type=Path,
+        help="problem file of the object (.npz): its poses, and the best grasps "
+        "for the gap curve (default: the built one if there is one, else poses "
+        "from the mesh and no gap)",
+    )
+    p.add_argument(
+        "--given-poses",
+        action="store_true",
+        help="tell the session the true pose and use the problem file's "
+        "reservoirs (no recognition): the batched engine's loop",
+    )
+    p.add_argument("--trial", type=int, default=0, help="problem trial (0)")
+    p.add_argument(
+        "--eval-every", type=int, default=100, help="curve point every N steps (100)"
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    _session_args(p)
+    _cache_arg(p)
+
+    p = sub.add_parser(
+        "recognition-table",
+        help="pose recognition on simulated views",
+        description="Recognise the stable poses of simulated views (random place, "
+        "yaw and sensor noise) of each object, with poses computed from the mesh; "
+        "write a markdown table of the fraction of views given the right pose and "
+        "the fraction of new poses that duplicate a known one.",
+    )
+    p.add_argument(
+        "--objects",
+        nargs="+",
+        default=None,
+        help="catalogue objects (default: the 13 Dex-Net objects)",
+    )
+    p.add_argument("--views", type=int, default=60, help="views per object (60)")
+    p.add_argument("--seed", type=int, default=0, help="seed (0)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=Path("results/online/recognition.md"),
+        help="markdown table (results/online/recognition.md)",
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    p = sub.add_parser(
+        "agreement",
+        help="the simulated online loop against the batched engine",
+        description="Run sessions against the simulated robot with the true pose "
+        "given and a problem file's reservoirs, and the batched engine on the same "
+        "problem; write a markdown table of the mean gap curves and whether they "
+        "agree (3 standard errors + 0.02 at every step, KS test of the final "
+        "gaps), and a figure. Optionally also sessions with recognition.",
+    )
+    p.add_argument("--problem", type=Path, required=True, help="problem file (.npz)")
+    p.add_argument("--method", default="legs", help="method (legs)")
+    p.add_argument("--rollouts", type=int, default=30, help="online sessions (30)")
+    p.add_argument(
+        "--engine-rollouts", type=int, default=500, help="engine rollouts (500)"
+    )
+    p.add_argument("--horizon", type=int, default=500, help="steps (500)")
+    p.add_argument("--every", type=int, default=50, help="curve step (50)")
+    p.add_argument(
+        "--recognition-rollouts",
+        type=int,
+        default=0,
+        help="sessions with recognition and observed reservoirs (0)",
+    )
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=Path("results/online/agreement.md"),
+        help="markdown table; the figure goes next to it (.png)",
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    _cache_arg(p)
+
+    p = sub.add_parser(
+        "bench",
+        help="time the targets",
+        description="Median of ask+tell for a known pose, recognition of a "
+        "640x480 image, and a new pose's reservoir of 2000 grasps, on bar_clamp "
+        "with the simulated camera.",
+    )
+    p.add_argument("--object", default="bar_clamp", help="catalogue object")
+    p.add_argument("--repeats", type=int, default=200, help="ask+tell pairs (200)")
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    try:
+        if args.command == "serve":
+            _compile_cache(args.compile_cache)
+            return _serve(args)
+        if args.command == "simulate":
+            _compile_cache(args.compile_cache)
+            return _simulate(args)
+        if args.command == "recognition-table":
+            from legs_jax.online.recognition_table import main as table_main
+
+            return table_main(args)
+        if args.command == "agreement":
+            from legs_jax.online.agreement import main as agreement_main
+
+            _compile_cache(args.compile_cache)
+            return agreement_main(args)
+        if args.command == "bench":
+            from legs_jax.online.bench import main as bench_main
+
+            return bench_main(args)
+    except (InputError, OrderError, StateError, ConfigError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    return 0
+
+
+def _serve(args) -> int:
+    import numpy as np
+
+    from legs_jax.online.camera import default_camera_pose
+    from legs_jax.online.protocol import serve
+    from legs_jax.online.session import Session
+
+    if (args.dir / "session.json").exists():
+        session = Session.open(args.dir)
+    else:
+        if args.camera_pose is not None:
+            try:
+                cam = np.load(args.camera_pose, allow_pickle=False)
+            except (OSError, ValueError) as e:
+                raise InputError(f"cannot read --camera-pose: {e}") from None
+        else:
+            cam = default_camera_pose(args.camera_height)
+        session = Session.create(
+            args.dir,
+            args.method,
+            hparams=_hparams(args.hparam),
+            seed=args.seed,
+            max_poses=args.max_poses,
+            reservoir_size=args.reservoir,
+            camera_pose=cam,
+        )
+    with session:
+        return serve(session)
+
+
+def _find_problem(name: str):
+    import precompute
+    from precompute.build import problem_path, problems_dir
+
+    info = precompute.catalog.lookup(name)
+    path = problem_path(info, problems_dir())
+    return path if path.is_file() else None
+
+
+def _simulate(args) -> int:
+    from legs_jax import problem as problem_mod
+    from legs_jax.online.robot import World
+    from legs_jax.online.simulate import Simulation
+    from precompute.errors import PrecomputeError
+
+    if args.steps < 1:
+        raise InputError(f"--steps must be at least 1, got {args.steps}")
+    if args.eval_every < 1:
+        raise InputError(f"--eval-every must be at least 1, got {args.eval_every}")
+    if not args.resume and (args.out / "session.json").exists():
+        raise StateError(
+            f"{args.out} already holds a session: add --resume to continue it, or "
+            "choose another --out"
+        )
+    try:
+        path = args.problem or _find_problem(args.object)
+        pb = None
+        if path is not None:
+            try:
+                pb = problem_mod.load(path)
+            except (OSError, ValueError) as e:
+                raise InputError(f"cannot read problem file {path}: {e}") from None
+            if pb.name != args.object:
+                raise InputError(
+                    f"{path} is the problem of {pb.name}, not {args.object}"
+                )
+            world = World.from_problem(pb)
+        else:
+            if args.given_poses:
+                raise InputError(
+                    f"--given-poses needs the problem file of {args.object}: build it "
+                    f"with python -m precompute --object {args.object}, or pass "
+                    "--problem"
+                )
+            world = World.from_mesh(args.object)
+    except PrecomputeError as e:
+        raise InputError(str(e)) from None
+    sim = Simulation(
+        args.out,
+        world,
+        method=args.method,
+        seed=args.seed,
+        resume=args.resume,
+        problem=pb,
+        trial=args.trial,
+        given_poses=args.given_poses,
+        hparams=_hparams(args.hparam),
+        max_poses=args.max_poses,
+        reservoir_size=args.reservoir,
+        eval_every=args.eval_every,
+    )
+    try:
+        sim.run(args.steps, progress=not args.quiet)
+        fig = sim.figure()
+        last = sim.curve[-1]
+        print(
+            f"{sim.step} grasps, {sim.session.successes} successes, "
+            f"{len(sim.session.grasps)} poses; bound p_lower = {last['p_lower']:.3f}, "
+            f"true success rate of the recommendations {last['performance']:.3f}"
+            + (f", gap {last['gap']:.3f}" if "gap" in last else "")
+        )
+        print(f"wrote {args.out} (session, curve.jsonl, {fig.name})")
+    finally:
+        sim.close()
+    return 0

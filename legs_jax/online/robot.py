@@ -1,0 +1,187 @@
+"""A simulated robot: an overhead depth camera and a parallel-jaw gripper over
+one object, with the physics of :mod:`precompute.grasps`.
+
+The object rests in a stable pose at a random position (uniform in a square of
+``±PLACE_RANGE`` about the table origin) and yaw (uniform). :meth:`SimRobot.render`
+casts one ray per pixel with Embree (:mod:`precompute.raycast`) and adds Gaussian
+depth noise (σ = ``NOISE``) and a fraction ``DROPOUT`` of missing pixels (NaN).
+:meth:`SimRobot.execute` maps the asked grasp (table frame) into the object's pose
+frame, perturbs it as the ground truth does (one draw of
+:func:`precompute.grasps.perturbations`: translation, yaw, friction) and runs
+:func:`precompute.grasps.execute` and force closure: success has probability p
+of the grasp. After a success the object is dropped (next pose ~ λ), after a
+failure it topples (next pose ~ the topple row), as in the batched engine; the
+object is then placed anew.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import numpy as np
+
+from legs_jax.online.camera import Intrinsics, default_camera_pose
+from legs_jax.online.recognition import yaw_matrix
+from precompute import grasps as G
+from precompute.raycast import RayCaster
+
+__all__ = ["DEFAULT_INTRINSICS", "NOISE", "DROPOUT", "World", "SimRobot"]
+
+DEFAULT_INTRINSICS = Intrinsics(
+    fx=525.0, fy=525.0, cx=319.5, cy=239.5, width=640, height=480
+)
+NOISE = 0.001  # m, depth noise σ
+DROPOUT = 0.005  # fraction of pixels without a reading
+PLACE_RANGE = 0.05  # m
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class World:
+    """One object's stable poses: the mesh (metres, mesh frame), the transforms
+    mesh → pose frame [P, 4, 4], landing λ [P] and topple [P, P]."""
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    transforms: np.ndarray
+    landing: np.ndarray
+    topple: np.ndarray
+
+    @property
+    def num_poses(self) -> int:
+        return len(self.landing)
+
+    @classmethod
+    def from_mesh(cls, name: str) -> World:
+        """Poses of catalogue object ``name`` computed from its mesh."""
+        import precompute
+        from precompute import poses as _poses
+        from precompute.mesh import load_mesh
+
+        info = precompute.catalog.lookup(name)
+        mesh = load_mesh(info.mesh_path, info.units)
+        hull = _poses.hull_model(mesh.vertices, mesh.faces, mesh.center_mass)
+        sp = _poses.stable_poses(hull, mesh.vertices, mesh.faces)
+        topple = _poses.topple_matrix(hull, sp)
+        topple = topple / topple.sum(axis=1, keepdims=True)
+        return cls(name, mesh.vertices, mesh.faces, sp.transforms, sp.landing, topple)
+
+    @classmethod
+    def from_problem(cls, problem) -> World:
+        """The poses of a problem file (its object's mesh from the catalogue)."""
+        import precompute
+        from precompute.mesh import load_mesh
+
+        info = precompute.catalog.lookup(problem.name)
+        mesh = load_mesh(info.mesh_path, info.units)
+        keep = np.flatnonzero(problem.pose_valid)
+        return cls(
+            problem.name,
+            mesh.vertices,
+            mesh.faces,
+            problem.pose_transform[keep].astype(np.float64),
+            problem.landing[keep].astype(np.float64),
+            problem.topple[np.ix_(keep, keep)].astype(np.float64),
+        )
+
+    @functools.lru_cache(maxsize=64)  # noqa: B019 - one world per run
+    def posed(self, s: int) -> tuple[RayCaster, G.HeightMap]:
+        """The Embree scene and height map of the mesh in pose s (pose frame)."""
+        tf = self.transforms[s]
+        v = self.vertices @ tf[:3, :3].T + tf[:3, 3]
+        caster = RayCaster(v, self.faces)
+        return caster, G.height_map(caster)
+
+
+class SimRobot:
+    """The simulated cell around one :class:`World`; all draws from ``rng``."""
+
+    def __init__(
+        self,
+        world: World,
+        rng: np.random.Generator,
+        *,
+        intrinsics: Intrinsics = DEFAULT_INTRINSICS,
+        camera_pose: np.ndarray | None = None,
+        noise: float = NOISE,
+        dropout: float = DROPOUT,
+    ):
+        self.world = world
+        self.rng = rng
+        self.intrinsics = intrinsics
+        self.camera_pose = default_camera_pose() if camera_pose is None else camera_pose
+        self.noise = noise
+        self.dropout = dropout
+        self.pose = 0
+        self.placement = np.eye(4)  # pose frame -> table frame
+        self._rays = None
+
+    def _draw(self, probs) -> int:
+        p = np.asarray(probs, np.float64)
+        return int(self.rng.choice(len(p), p=p / p.sum()))
+
+    def place(self, pose: int | None = None) -> None:
+        """Put the object in ``pose`` (default: drawn from λ) at a random place."""
+        self.pose = self._draw(self.world.landing) if pose is None else int(pose)
+        tf = np.eye(4)
+        tf[:3, :3] = yaw_matrix(self.rng.uniform(0.0, 2 * np.pi))
+        tf[:2, 3] = self.rng.uniform(-PLACE_RANGE, PLACE_RANGE, 2)
+        self.placement = tf
+
+    def render(self) -> np.ndarray:
+        """[H, W] noisy depth image (metres, NaN: no reading) of the object."""
+        intr = self.intrinsics
+        if self._rays is None:
+            self._rays = intr.rays().reshape(-1, 3)
+        caster, _ = self.world.posed(self.pose)
+        # into the pose frame: camera -> table -> pose
+        cam_to_pose = np.linalg.inv(self.placement) @ self.camera_pose
+        R, t = cam_to_pose[:3, :3], cam_to_pose[:3, 3]
+        dirs = self._rays @ R.T
+        origins = np.broadcast_to(t, dirs.shape)
+        hit, _ = caster.cast_raw(origins, dirs)
+        hit = hit.astype(np.float64)
+        table = -t[2] / dirs[:, 2]  # the plane z = 0 (the table)
+        depth = np.where(np.isfinite(hit) & (hit < table), hit, table)
+        depth = depth.reshape(intr.height, intr.width)
+        depth = depth + self.rng.normal(0.0, self.noise, depth.shape)
+        depth[self.rng.random(depth.shape) < self.dropout] = np.nan
+        return depth
+
+    def to_pose_frame(self, center: np.ndarray, axis: np.ndarray):
+        """A grasp in the table frame -> the object's pose frame."""
+        inv = np.linalg.inv(self.placement)
+        return inv[:3, :3] @ center + inv[:3, 3], inv[:3, :3] @ axis
+
+    def execute(self, center_table, axis_table, *, pose_frame: bool = False) -> bool:
+        """One perturbed execution of the grasp (table frame, or the pose frame
+        when ``pose_frame``); the object then drops or topples and is placed anew
+        in its next pose."""
+        c = np.asarray(center_table, np.float64)
+        a = np.asarray(axis_table, np.float64)
+        if not pose_frame:
+            c, a = self.to_pose_frame(c, a)
+        ok = self.success(c, a)
+        self.transition(ok)
+        return ok
+
+    def success(self, center_pose, axis_pose, samples: int = 1) -> bool | float:
+        """Perturbed executions of a pose-frame grasp in the current pose: one
+        outcome (samples=1) or the fraction of ``samples`` that succeed."""
+        caster, hmap = self.world.posed(self.pose)
+        dxy, dyaw, mu = G.perturbations(self.rng, 1, samples)
+        p = G.robustness(
+            caster,
+            hmap,
+            np.asarray(center_pose)[None],
+            np.asarray(axis_pose)[None],
+            dxy,
+            dyaw,
+            mu,
+        )
+        return bool(p[0] > 0.5) if samples == 1 else float(p[0])
+
+    def transition(self, success: bool) -> None:
+        row = self.world.landing if success else self.world.topple[self.pose]
+        self.place(self._draw(row))

@@ -1,0 +1,101 @@
+"""Devices and hosts: CPU device flags, the compilation cache, the local devices
+and ``jax.distributed`` across hosts."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+from typing import Any
+
+from legs_jax.sweep.plan import MAX_DEFAULT_HOST_DEVICES, SweepError
+
+
+def _compile_cache(option: str | None) -> str | None:
+    """Turn on JAX's persistent compilation cache (results do not depend on it)."""
+    if option == "off":
+        return None
+    path = option or os.environ.get("JAX_COMPILATION_CACHE_DIR")
+    if not path:
+        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(
+            os.path.expanduser("~"), ".cache"
+        )
+        path = os.path.join(base, "legs_jax", "jax")
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError:
+        return None  # a read-only home: run without the cache
+    import jax
+
+    jax.config.update("jax_compilation_cache_dir", path)
+    return path
+
+
+def _set_device_flags(n: int | None) -> None:
+    """Ask XLA for host (CPU) devices: ``n``, or by default one per core (at most
+    8), since separate CPU devices run rollouts in parallel. It only matters on a
+    CPU-only machine, takes effect only before JAX starts, and an explicit
+    ``--xla_force_host_platform_device_count`` in XLA_FLAGS wins."""
+    if n is None:
+        n = min(os.cpu_count() or 1, MAX_DEFAULT_HOST_DEVICES)
+    flags = os.environ.get("XLA_FLAGS", "")
+    if n < 2 or "xla_force_host_platform_device_count" in flags:
+        return
+    os.environ["XLA_FLAGS"] = (
+        flags + f" --xla_force_host_platform_device_count={n}"
+    ).strip()
+
+
+# ======================================================================== devices
+def _devices(n: int | None):
+    import jax
+
+    local = jax.local_devices()
+    if n is not None and n > len(local):
+        raise SweepError(
+            f"--devices {n}: only {len(local)} local device(s) "
+            f"({local[0].platform}) are available"
+        )
+    return local[: n or len(local)]
+
+
+def _device_info(devices) -> dict[str, Any]:
+    return {
+        "platform": devices[0].platform,
+        "kind": devices[0].device_kind,
+        "count": len(devices),
+    }
+
+
+# ============================================================================ main
+@dataclasses.dataclass
+class _Dist:
+    num_processes: int = 1
+    process_id: int = 0
+
+    @property
+    def leader(self) -> bool:
+        return self.process_id == 0
+
+
+def _init_distributed(a: argparse.Namespace) -> _Dist:
+    if a.coordinator is None:
+        return _Dist()
+    import jax
+
+    jax.distributed.initialize(
+        coordinator_address=a.coordinator,
+        num_processes=a.num_processes,
+        process_id=a.process_id,
+    )
+    return _Dist(a.num_processes, a.process_id)
+
+
+def _barrier(dist: _Dist, name: str) -> None:
+    if dist.num_processes == 1:
+        return
+    from jax._src import distributed
+
+    client = distributed.global_state.client
+    if client is not None:
+        client.wait_at_barrier(name, timeout_in_ms=7 * 24 * 3600 * 1000)

@@ -1,0 +1,420 @@
+"""The chunk store: output folders, finished chunks (checked by their SHA-256),
+reuse of identical rollouts from other experiments, manifests and the merge into
+the final tables."""
+
+from __future__ import annotations
+
+import importlib.metadata
+import os
+import platform
+import shutil
+import subprocess
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from legs_jax import results as res
+from legs_jax.sweep.plan import Chunk, ExperimentPlan, ObjectEntry, SweepError, _say
+
+
+def _versions() -> dict[str, str]:
+    out = {"python": platform.python_version()}
+    for pkg in ("legs_jax", "jax", "jaxlib", "numpy", "scipy", "pandas", "pyarrow"):
+        try:
+            out[pkg] = importlib.metadata.version(pkg)
+        except importlib.metadata.PackageNotFoundError:
+            out[pkg] = "not installed"
+    return out
+
+
+def _portable_path(path: str | os.PathLike) -> str:
+    """``path`` relative to the working directory or to the repository when it lies
+    under one of them (so results name no machine-specific folder), else as
+    given."""
+    p = Path(path).resolve()
+    for base in (Path.cwd().resolve(), Path(__file__).resolve().parents[2]):
+        try:
+            return p.relative_to(base).as_posix()
+        except ValueError:
+            continue
+    return str(path)
+
+
+def _git_commit() -> dict[str, Any]:
+    """The commit of the code and whether tracked files other than ``results/``
+    (which a sweep rewrites) differ from it."""
+    root = Path(__file__).resolve().parents[2]
+    try:
+        commit = subprocess.run(
+            ["git", "rev-parse", "HEAD"],
+            cwd=root,
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
+        if commit.returncode != 0:
+            return {"commit": None}
+        dirty = subprocess.run(
+            [
+                "git",
+                "status",
+                "--porcelain",
+                "--untracked-files=no",
+                "--",
+                ".",
+                ":(exclude)results",
+            ],
+            cwd=root,
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
+        return {"commit": commit.stdout.strip(), "dirty": bool(dirty.stdout.strip())}
+    except (OSError, subprocess.SubprocessError):
+        return {"commit": None}
+
+
+def _object_stamp(o: ObjectEntry) -> tuple[str, int, str]:
+    return (o.name, int(o.object_id), o.sha256)
+
+
+class _Donors:
+    """Finished chunks of the other experiments in the output folder whose rollouts
+    can stand in for this experiment's: same chunk signature (method, hyperparameter
+    grid, seed, sizes, what is recorded), same problem file, same trial, made by
+    the same clean commit as the running code. case_study and early_stopping repeat
+    runs of main this way; the copied rows are the rows a computation would give,
+    because a rollout's keys depend only on (seed, object, trial, rollout)."""
+
+    def __init__(self, out: Path, exclude: str, git: Mapping[str, Any]):
+        import json
+
+        self.index: dict[tuple[str, tuple[str, int, str], int], Path] = {}
+        if not git.get("commit") or git.get("dirty", True):
+            return
+        for path in sorted(out.glob(f"*/chunks/*/{res.CHUNK_META}")):
+            if path.parent.parent.parent.name == exclude:
+                continue
+            try:
+                with open(path) as fh:
+                    meta = json.load(fh)
+            except (OSError, json.JSONDecodeError):
+                continue
+            if meta.get("git") != dict(git) or not meta.get("signature"):
+                continue
+            for stamp in meta.get("object_stamps") or ():
+                for t in meta.get("trials") or ():
+                    key = (meta["signature"], tuple(stamp), int(t))
+                    self.index.setdefault(key, path.parent)
+
+    def __bool__(self) -> bool:
+        return bool(self.index)
+
+    def find(self, signature: str, stamp: tuple[str, int, str], trial: int):
+        return self.index.get((signature, stamp, trial))
+
+
+def _reuse_chunk(plan: ExperimentPlan, chunk: Chunk, donors: _Donors):
+    """The tables of ``chunk`` copied from donor chunks that hold every one of its
+    (object, trial) pairs, or None when some pair has no donor. Chunks that record
+    active sets are always computed (no experiment records them twice)."""
+    import json
+
+    import pandas as pd
+
+    if chunk.record_active_set or not chunk.signature or not donors:
+        return None
+    sources: dict[Path, None] = {}
+    for i in chunk.objects:
+        for t in chunk.trials:
+            d = donors.find(chunk.signature, _object_stamp(plan.objects[i]), t)
+            if d is None:
+                return None
+            sources[d] = None
+    names = [plan.objects[i].name for i in chunk.objects]
+    arm = plan.arms[chunk.arm]
+    parts: dict[str, list[pd.DataFrame]] = {}
+    curve_steps = None
+    if any(res.verify_chunk(d.parent, d.name) is not None for d in sources):
+        return None  # a damaged donor: compute instead
+    try:
+        for d in sources:
+            with open(d / res.CHUNK_META) as fh:
+                steps = json.load(fh)["curve_steps"]
+            if curve_steps is not None and steps != curve_steps:
+                return None
+            curve_steps = steps
+            for t in ("runs", "checks"):
+                f = d / f"{t}.parquet"
+                if not f.is_file():
+                    continue
+                df = pd.read_parquet(f)
+                df = df[df["object"].isin(names) & df["trial"].isin(chunk.trials)]
+                df = df.copy()
+                df["experiment"] = plan.name
+                df["variant"] = arm.variant
+                parts.setdefault(t, []).append(df)
+    except (OSError, KeyError, ValueError):
+        return None  # a donor vanished or is unreadable: compute instead
+    tables = {t: pd.concat(v, ignore_index=True) for t, v in parts.items()}
+    if "runs" not in tables or len(tables["runs"]) != chunk.rollouts:
+        return None
+    if chunk.record_checks and "checks" not in tables:
+        return None
+    origin = [f"{d.parent.parent.name}/{d.name}" for d in sources]
+    return tables, curve_steps, origin
+
+
+def _exp_dir(out: Path, name: str) -> Path:
+    return out / name
+
+
+def _prepare_dir(plan: ExperimentPlan, out: Path, overwrite: bool, leader: bool):
+    """Check existing results against the configuration; delete them when asked."""
+    d = _exp_dir(out, plan.name)
+    manifest = d / "manifest.json"
+    chash = res.config_hash(plan.config())
+    if overwrite:
+        if not leader or not d.exists():
+            return d, chash
+        for f in ("manifest.json", *(f"{t}.parquet" for t in _FINAL_TABLES)):
+            if (d / f).exists():
+                (d / f).unlink()
+        if (d / "chunks").exists():
+            shutil.rmtree(d / "chunks")
+        return d, chash
+    if manifest.is_file():
+        import json
+
+        with open(manifest) as fh:
+            old = json.load(fh)
+        if old.get("config_hash") != chash:
+            diff = _config_diff(old.get("config", {}), plan.config())
+            raise SweepError(
+                f"{d} holds results of a different configuration (differs in: "
+                f"{diff}); pass --overwrite to replace them or --out for another folder"
+            )
+    # Finished chunks of this plan must match it.
+    chunks_dir = d / "chunks"
+    for c in plan.chunks:
+        if _chunk_ok(chunks_dir, c.id):  # a damaged chunk is recomputed later
+            meta = res.read_chunk_meta(chunks_dir, c.id)
+            if meta.get("hash") != c.hash:
+                raise SweepError(
+                    f"{chunks_dir / c.id} was made with a different configuration; "
+                    "pass --overwrite to replace the results"
+                )
+    return d, chash
+
+
+def _merged_without_chunks(plan: ExperimentPlan, out: Path) -> bool:
+    """The experiment's merged tables are complete and current (same problem
+    files; :func:`_prepare_dir` has already refused another configuration) but
+    some chunk folders are gone, as in a fresh clone of committed results:
+    nothing needs recomputing."""
+    import json
+
+    d = _exp_dir(out, plan.name)
+    chunks_dir = d / "chunks"
+    if all(res.chunk_done(chunks_dir, c.id) for c in plan.chunks):
+        return False  # the ordinary path re-merges from the chunks
+    try:
+        with open(d / "manifest.json") as fh:
+            old = json.load(fh)
+    except (OSError, json.JSONDecodeError):
+        return False
+    files = old.get("problem_files") or {}
+    return (
+        old.get("status") == "complete"
+        and (d / "runs.parquet").is_file()
+        and all(
+            (files.get(o.name) or {}).get("sha256") == o.sha256 for o in plan.objects
+        )
+    )
+
+
+def _chunk_ok(chunks_dir: Path, chunk_id: str) -> bool:
+    """The chunk is finished and whole (:func:`legs_jax.results.verify_chunk`)."""
+    return res.chunk_done(chunks_dir, chunk_id) and (
+        res.verify_chunk(chunks_dir, chunk_id) is None
+    )
+
+
+def _drop_damaged(plan: ExperimentPlan, chunks: Sequence[Chunk], d: Path) -> int:
+    """Delete the finished chunks among ``chunks`` whose files do not match their
+    recorded SHA-256 (a partial copy, a disk error), with a warning that names
+    each, so that they are computed again; returns how many."""
+    n = 0
+    for c in chunks:
+        if not res.chunk_done(d / "chunks", c.id):
+            continue
+        why = res.verify_chunk(d / "chunks", c.id)
+        if why is None:
+            continue
+        _say(f"warning: {plan.name}: chunk {c.id} is damaged ({why}); recomputing it")
+        shutil.rmtree(d / "chunks" / c.id, ignore_errors=True)
+        n += 1
+    return n
+
+
+def _complete_and_current(plan: ExperimentPlan, out: Path) -> bool:
+    """The experiment is complete: manifest of this configuration with status
+    complete, its merged tables present and every chunk whole. A run then leaves
+    every file as it is."""
+    import json
+
+    d = _exp_dir(out, plan.name)
+    try:
+        with open(d / "manifest.json") as fh:
+            old = json.load(fh)
+    except (OSError, json.JSONDecodeError):
+        return False
+    return (
+        old.get("status") == "complete"
+        and old.get("config_hash") == res.config_hash(plan.config())
+        and (d / "runs.parquet").is_file()
+        and all(_chunk_ok(d / "chunks", c.id) for c in plan.chunks)
+    )
+
+
+def _config_diff(old: Mapping[str, Any], new: Mapping[str, Any]) -> str:
+    keys = sorted(set(old) | set(new))
+    diff = [k for k in keys if res._canonical(old.get(k)) != res._canonical(new.get(k))]
+    return ", ".join(diff) or "unknown"
+
+
+_FINAL_TABLES = (
+    "runs",
+    "curves",
+    "checks",
+    "active_set",
+    "grasps",
+    "objects",
+)
+
+
+def _write_manifest(
+    plan: ExperimentPlan,
+    d: Path,
+    status: str,
+    session: dict[str, Any],
+) -> None:
+    import json
+
+    chunks_dir = d / "chunks"
+    chunks = {}
+    for c in plan.chunks:
+        if _chunk_ok(chunks_dir, c.id):
+            m = res.read_chunk_meta(chunks_dir, c.id)
+            chunks[c.id] = {
+                k: m.get(k)
+                for k in (
+                    "wall_s",
+                    "reused_from",
+                    "rollouts",
+                    "device",
+                    "host",
+                    "process_id",
+                    "git",
+                    "finished",
+                )
+            }
+    old_sessions = []
+    mf = d / "manifest.json"
+    if mf.is_file():
+        with open(mf) as fh:
+            try:
+                old_sessions = json.load(fh).get("sessions", [])
+            except json.JSONDecodeError:
+                old_sessions = []
+    sessions = [s for s in old_sessions if s.get("id") != session["id"]] + [session]
+    manifest = {
+        "experiment": plan.name,
+        "description": plan.description,
+        "status": status,
+        "config": plan.config(),
+        "config_hash": res.config_hash(plan.config()),
+        "problem_files": {
+            o.name: {"path": _portable_path(o.path), "sha256": o.sha256}
+            for o in plan.objects
+        },
+        "seeds": {
+            "seed": plan.seed,
+            "rollout_key": "fold_in(fold_in(fold_in(key(seed), object_id), trial), "
+            "rollout)",
+            "object_ids": {o.name: o.object_id for o in plan.objects},
+        },
+        "git": _git_commit(),
+        "git_commits_of_chunks": sorted(
+            {str((c.get("git") or {}).get("commit")) for c in chunks.values()}
+        ),
+        "versions": _versions(),
+        "chunks_total": len(plan.chunks),
+        "chunks_done": len(chunks),
+        "chunks": chunks,
+        "wall_s_chunks": float(sum(c["wall_s"] or 0.0 for c in chunks.values())),
+        "sessions": sessions,
+        "curves": "aggregated: mean and standard error over the T x R runs of each "
+        "object, method, variant and hyperparameters; per-run curves are in the "
+        "gap_curve column of chunks/*/runs.parquet",
+        "extra": plan.extra,
+    }
+    res.atomic_write_json(manifest, mf)
+
+
+def _merge(plan: ExperimentPlan, d: Path) -> dict[str, int]:
+    """Write the final tables of a complete experiment; returns their row counts."""
+    import pandas as pd
+
+    chunks_dir = d / "chunks"
+    tables = res.merge_chunks(
+        chunks_dir,
+        [c.id for c in plan.chunks],
+        [(a.method, a.variant) for a in plan.arms],
+        [o.name for o in plan.objects],
+    )
+    for name, df in tables.items():
+        res.atomic_write_parquet(df, d / f"{name}.parquet")
+    objects = pd.DataFrame(
+        {
+            "object": [o.name for o in plan.objects],
+            "set": [o.set for o in plan.objects],
+            "object_id": np.array([o.object_id for o in plan.objects], np.int64),
+            "num_poses": np.array([o.num_poses for o in plan.objects], np.int64),
+            "num_grasps": np.array([o.num_grasps for o in plan.objects], np.int64),
+            "problem_file": [_portable_path(o.path) for o in plan.objects],
+            "sha256": [o.sha256 for o in plan.objects],
+        }
+    )
+    res.atomic_write_parquet(objects, d / "objects.parquet")
+    if plan.active_set_methods:
+        res.atomic_write_parquet(_grasps_table(plan), d / "grasps.parquet")
+    return {k: len(v) for k, v in tables.items()}
+
+
+def _grasps_table(plan: ExperimentPlan):
+    """Ground truth and prior of trial 0's reservoir of each object (histograms)."""
+    import pandas as pd
+
+    from legs_jax import problem as problem_mod
+
+    frames = []
+    for o in plan.objects:
+        pb = problem_mod.load(o.path)
+        p, g = np.nonzero(pb.valid[0])
+        frames.append(
+            pd.DataFrame(
+                {
+                    "object": o.name,
+                    "trial": np.zeros(len(p), np.int64),
+                    "pose": p.astype(np.int64),
+                    "grasp": g.astype(np.int64),
+                    "landing": pb.landing[p].astype(np.float64),
+                    "robustness": pb.robustness[0][p, g].astype(np.float64),
+                    "prior": pb.prior[0][p, g].astype(np.float64),
+                }
+            )
+        )
+    return pd.concat(frames, ignore_index=True)

@@ -1,0 +1,398 @@
+"""The online session: recognition, alignment, sampling, bad input, persistence,
+the JSON-lines protocol and the command line."""
+
+from __future__ import annotations
+
+import io
+import json
+import warnings
+
+import numpy as np
+import pytest
+import trimesh
+
+from legs_jax.online import InputError, Intrinsics, OrderError, Session, StateError, cli
+from legs_jax.online.protocol import serve
+from legs_jax.online.robot import SimRobot, World
+from legs_jax.online.sampler import geometric_prior, sample_grasps
+
+# A 320x240 camera (half the default resolution) keeps the tests fast.
+INTR = Intrinsics(fx=262.5, fy=262.5, cx=159.5, cy=119.5, width=320, height=240)
+K = 300  # reservoir size of the sessions here
+
+
+@pytest.fixture(scope="module")
+def clamp() -> World:
+    return World.from_mesh("bar_clamp")
+
+
+@pytest.fixture(scope="module")
+def box() -> World:
+    """A 40 x 60 x 30 mm box resting on its largest face (one pose)."""
+    m = trimesh.creation.box((0.04, 0.06, 0.03))
+    tf = np.eye(4)
+    tf[2, 3] = 0.015
+    return World(
+        "box", np.asarray(m.vertices), np.asarray(m.faces), tf[None], np.ones(1),
+        np.ones((1, 1)),
+    )  # fmt: skip
+
+
+def robot(world, seed=0) -> SimRobot:
+    return SimRobot(world, np.random.default_rng(seed), intrinsics=INTR)
+
+
+def view(rob, pose=None):
+    rob.place(pose)
+    return rob.render()
+
+
+def given_poses(P=3, seed=0):
+    rng = np.random.default_rng(seed)
+    out = {}
+    for s in range(P):
+        a = rng.uniform(0, 2 * np.pi, K)
+        out[s] = {
+            "center": rng.normal(0, 0.01, (K, 3)),
+            "axis": np.stack([np.cos(a), np.sin(a), np.zeros(K)], 1),
+            "width": np.full(K, 0.03),
+            "q": rng.uniform(0, 1, K),
+            "valid": np.arange(K) < K - 10 * s,
+        }
+    return out
+
+
+def folder_bytes(path):
+    return {p.name: p.read_bytes() for p in sorted(path.rglob("*")) if p.is_file()}
+
+
+# ------------------------------------------------------------------ recognition
+
+
+def test_recognition_same_pose_new_pose_and_alignment(tmp_path, clamp):
+    """A second view of a pose (another place and yaw) is recognised, and the
+    recognised alignment maps the pose's grasps onto the same spots of the object;
+    a view of another pose is a new pose."""
+    rob = robot(clamp, 1)
+    with Session.create(tmp_path / "s", reservoir_size=K) as ses:
+        o1 = ses.observe(view(rob, 0), INTR)
+        assert o1["new"] and o1["pose"] == 0 and o1["grasps"] > 100
+        T1, P1 = ses.transform.copy(), rob.placement.copy()
+        o2 = ses.observe(view(rob, 0), INTR)
+        assert not o2["new"] and o2["pose"] == 0 and o2["fraction"] >= 0.8
+        T2, P2 = ses.transform.copy(), rob.placement.copy()
+        assert not np.allclose(P1, P2)  # it did move
+        c = ses.grasps[0]["center"][:100].astype(np.float64)
+        # pose frame -> table (via the recognised alignment) -> object frame
+        obj = []
+        for T, Pl in ((T1, P1), (T2, P2)):
+            tab = c @ np.linalg.inv(T)[:3, :3].T + np.linalg.inv(T)[:3, 3]
+            obj.append(tab @ np.linalg.inv(Pl)[:3, :3].T + np.linalg.inv(Pl)[:3, 3])
+        err = np.linalg.norm(obj[0] - obj[1], axis=1)
+        assert np.median(err) < 0.003, np.median(err)
+        o3 = ses.observe(view(rob, 2), INTR)
+        assert o3["new"] and o3["pose"] == 1
+
+
+def test_sampled_grasps_of_a_box_are_antipodal_and_mostly_succeed(box):
+    rob = robot(box, 3)
+    d = view(rob, 0)
+    g = sample_grasps(d, INTR, rob.camera_pose, 200, np.random.default_rng(0))
+    assert len(g) == 200
+    # contacts on opposite faces: the width is about one of the box's sides (40 or
+    # 60 mm; the edge pixels lie up to two pixels, 5 mm, inside the rim; the axis
+    # may lean up to 45° off the face normals; a few pinch a corner)
+    assert np.mean((g.width > 0.03) & (g.width < 0.08)) > 0.95
+    assert np.mean(np.abs(g.width - 0.04) < 0.01) > 0.3
+    assert np.allclose(g.axis[:, 2], 0) and np.allclose(
+        np.linalg.norm(g.axis, axis=1), 1
+    )
+    q = geometric_prior(g)
+    assert np.all((q >= 0.3) & (q <= 0.7))
+    # executed with the physics (20 perturbed executions each): many hold, and the
+    # stand-in prior (which reads only the image) ranks them: the grasps it scores
+    # in the top half succeed far more often than the bottom half
+    p = np.array(
+        [
+            rob.success(*rob.to_pose_frame(c, a), samples=20)
+            for c, a in zip(g.center[:100], g.axis[:100], strict=True)
+        ]
+    )
+    assert p.mean() > 0.3, p.mean()
+    top = q[:100] >= np.median(q[:100])
+    assert p[top].mean() > p[~top].mean() + 0.2, (p[top].mean(), p[~top].mean())
+
+
+# ------------------------------------------------------------------ bad input
+
+
+def test_bad_input_gets_a_clear_error_and_changes_nothing(tmp_path, clamp):
+    rob = robot(clamp, 2)
+    folder = tmp_path / "s"
+    with Session.create(folder, reservoir_size=K) as ses:
+        with pytest.raises(OrderError, match="observe"):
+            ses.ask()
+        good = view(rob, 0)
+        table = np.full((INTR.height, INTR.width), 0.7)
+        cases = [
+            (good[:100], INTR, "intrinsics say"),
+            (np.full_like(good, np.nan), INTR, "empty"),
+            (np.zeros_like(good), INTR, "empty"),
+            (table, INTR, "no object in view"),
+            (good * 1000, INTR, "metres"),
+            (good, {"fx": 1}, "intrinsics lack"),
+            (good, {**INTR.to_dict(), "fx": -5}, "fx, fy > 0"),
+            (np.stack([good, good]), INTR, "2-D"),
+            ("not an image", INTR, "2-D|numbers"),
+        ]
+        before = folder_bytes(folder)
+        for depth, intr, msg in cases:
+            with pytest.raises(InputError, match=msg):
+                ses.observe(depth, intr)
+        assert folder_bytes(folder) == before
+        ses.observe(good, INTR)
+        with pytest.raises(OrderError, match="without a pending ask"):
+            ses.tell(True)
+        ses.ask()
+        before = folder_bytes(folder)
+        for bad in ("yes", 1, None):
+            with pytest.raises(InputError, match="true or false"):
+                ses.tell(bad)
+        with pytest.raises(InputError, match="rho_min"):
+            ses.bound(1.5)
+        assert folder_bytes(folder) == before
+        ses.tell(True)
+        with pytest.raises(OrderError):
+            ses.tell(True)  # the outcome of one ask is told once
+
+
+def test_ask_is_idempotent_and_counts_follow_the_engine(tmp_path):
+    with Session.create(tmp_path / "s", given_poses=given_poses()) as ses:
+        ses.observe(pose=0)  # first landing: counted
+        a = ses.ask()
+        assert ses.ask() == a
+        ses.tell(False)
+        ses.observe(pose=1)  # a topple: observed, not counted
+        ses.ask()
+        ses.tell(True)
+        ses.observe(pose=2)  # a drop after a success: counted
+        ses.observe(pose=1)  # looked again before grasping: the count moves
+        assert ses.counts[:3].tolist() == [1, 1, 0]
+        assert ses.observed[:3].all()
+        b = ses.bound(0.0)
+        assert b["stop"] and 0 <= b["p_lower_attempted"] <= b["p_lower"] <= 1
+
+
+# ------------------------------------------------------------------ persistence
+
+
+def _script(steps, seed, P=3):
+    """(pose, outcome) of each step."""
+    rng = np.random.default_rng(seed)
+    return [(int(rng.integers(P)), bool(rng.random() < 0.4)) for _ in range(steps)]
+
+
+def _drive(ses, script):
+    for pose, ok in script:
+        ses.observe(pose=pose)
+        ses.ask()
+        ses.tell(ok)
+
+
+def test_resume_replays_every_outcome_exactly(tmp_path):
+    """A session closed and reopened halfway makes the same choices as one run
+    straight through, and holds the same posteriors and counts."""
+    script = _script(120, 0)
+    with Session.create(tmp_path / "a", given_poses=given_poses(), seed=3) as a:
+        _drive(a, script)
+        rec_a, est_a, counts_a = a.loop.recommendation(), a.loop.estimates(), a.counts
+        log_a = (tmp_path / "a" / "log.jsonl").read_text()
+    with Session.create(tmp_path / "b", given_poses=given_poses(), seed=3) as b:
+        _drive(b, script[:50])
+    with Session.open(tmp_path / "b") as b:
+        assert b.step == 50
+        _drive(b, script[50:])
+        assert np.array_equal(b.loop.recommendation(), rec_a)
+        assert np.array_equal(b.counts, counts_a)
+        for x, y in zip(b.loop.estimates(), est_a, strict=True):
+            np.testing.assert_array_equal(x, y)
+    assert (tmp_path / "b" / "log.jsonl").read_text() == log_a
+
+
+def test_corrupt_foreign_and_torn_state_files(tmp_path):
+    folder = tmp_path / "s"
+    with Session.create(folder, given_poses=given_poses()) as ses:
+        _drive(ses, _script(10, 1))
+        with pytest.raises(StateError, match="another process"):
+            Session.open(folder)
+    with pytest.raises(StateError, match="already holds a session"):
+        Session.create(folder, given_poses=given_poses())
+    log = folder / "log.jsonl"
+    good = log.read_bytes()
+    lines = good.split(b"\n")
+    # a torn last record (a kill during the write): dropped, the rest resumes
+    log.write_bytes(good + lines[-2][:25])
+    with pytest.warns(UserWarning, match="torn"):
+        with Session.open(folder) as ses:
+            assert ses.step == 10
+    assert log.read_bytes() == good
+    # a damaged record inside the log
+    bad = lines.copy()
+    bad[5] = bad[5][:-3] + b"}}}"
+    log.write_bytes(b"\n".join(bad))
+    with pytest.raises(StateError, match="line 6"):
+        Session.open(folder)
+    log.write_bytes(good)
+    # an altered pose file
+    pose = folder / "poses" / "001.npz"
+    pose_bytes = pose.read_bytes()
+    pose.write_bytes(pose_bytes[:-1] + bytes([pose_bytes[-1] ^ 1]))
+    with pytest.raises(StateError, match="checksum"):
+        Session.open(folder)
+    pose.write_bytes(pose_bytes)
+    # foreign or missing session files
+    cfg = folder / "session.json"
+    text = cfg.read_text()
+    cfg.write_text(json.dumps({"format": "something else"}))
+    with pytest.raises(StateError, match="not a legs_jax online session"):
+        Session.open(folder)
+    cfg.write_text("{not json")
+    with pytest.raises(StateError, match="not a session file"):
+        Session.open(folder)
+    cfg.write_text(text)
+    with pytest.raises(StateError, match="holds no session"):
+        Session.open(tmp_path / "elsewhere")
+    with Session.open(folder) as ses:
+        assert ses.step == 10
+
+
+def test_a_tampered_outcome_is_refused(tmp_path):
+    folder = tmp_path / "s"
+    with Session.create(folder, given_poses=given_poses()) as ses:
+        _drive(ses, _script(5, 2))
+    log = folder / "log.jsonl"
+    text = log.read_text()
+    flipped = text.replace('"success":true', '"success":false', 1)
+    if flipped == text:
+        flipped = text.replace('"success":false', '"success":true', 1)
+    log.write_text(flipped)
+    with pytest.raises(StateError, match="corrupt"):
+        Session.open(folder)
+
+
+# ------------------------------------------------------------------ protocol
+
+
+def test_json_lines_exchange(tmp_path, clamp):
+    rob = robot(clamp, 4)
+    np.save(tmp_path / "frame.npy", view(rob, 0))
+    intr = INTR.to_dict()
+    reqs = [
+        {"id": 1, "cmd": "ask"},
+        {
+            "id": 2,
+            "cmd": "observe",
+            "depth": {"npy": str(tmp_path / "frame.npy")},
+            "intrinsics": intr,
+        },
+        {"id": 3, "cmd": "ask"},
+        {"id": 4, "cmd": "tell", "success": True},
+        {"id": 5, "cmd": "tell", "success": True},
+        {"id": 6, "cmd": "bound", "rho_min": 0.9},
+        {
+            "id": 7,
+            "cmd": "observe",
+            "depth": {"b64": "AAAA", "dtype": "float32", "shape": [2, 2]},
+            "intrinsics": intr,
+        },
+        {"id": 8, "cmd": "dance"},
+        {"id": 9, "cmd": "status"},
+        {"id": 10, "cmd": "quit"},
+    ]
+    stdin = io.StringIO("\n".join(json.dumps(r) for r in reqs) + "\nnot json\n")
+    stdout = io.StringIO()
+    with Session.create(tmp_path / "s", reservoir_size=K) as ses:
+        serve(ses, stdin, stdout)
+    out = [json.loads(line) for line in stdout.getvalue().splitlines()]
+    assert out[0]["ok"] and "ready" in out[0]
+    by_id = {r["id"]: r for r in out[1:]}
+    assert [r["id"] for r in out[1:]] == list(range(1, 11))  # stops at quit
+    assert not by_id[1]["ok"] and by_id[1]["error"]["type"] == "OrderError"
+    assert by_id[2]["ok"] and by_id[2]["result"]["new"]
+    g = by_id[3]["result"]
+    assert len(g["center_table"]) == 3 and 0 < g["width"] <= 0.08
+    assert g["depth"] == pytest.approx(0.7 - g["height"], abs=1e-9)
+    assert by_id[4]["ok"] and by_id[4]["result"]["step"] == 1
+    assert by_id[5]["error"]["type"] == "OrderError"
+    assert by_id[6]["ok"] and set(by_id[6]["result"]) >= {"p_lower", "stop"}
+    assert "bytes" in by_id[7]["error"]["message"]
+    assert "unknown cmd" in by_id[8]["error"]["message"]
+    assert by_id[9]["result"]["step"] == 1
+
+
+# ------------------------------------------------------------------ command line
+
+
+def test_cli_help_and_clear_errors(tmp_path, capsys):
+    with pytest.raises(SystemExit) as e:
+        cli.main(["--help"])
+    assert e.value.code == 0
+    assert "JSON" in capsys.readouterr().out
+    for cmd in ("serve", "simulate", "recognition-table", "bench"):
+        with pytest.raises(SystemExit):
+            cli.main([cmd, "--help"])
+        assert "usage" in capsys.readouterr().out
+    assert (
+        cli.main(
+            ["simulate", "--object", "no_such_thing", "--out", str(tmp_path / "x")]
+        )
+        == 2
+    )
+    assert "no_such_thing" in capsys.readouterr().err
+    assert (
+        cli.main(
+            [
+                "simulate",
+                "--object",
+                "bar_clamp",
+                "--steps",
+                "0",
+                "--out",
+                str(tmp_path / "x"),
+            ]
+        )
+        == 2
+    )
+    assert "--steps" in capsys.readouterr().err
+    (tmp_path / "y").mkdir()
+    (tmp_path / "y" / "session.json").write_text("{}")
+    assert (
+        cli.main(["simulate", "--object", "bar_clamp", "--out", str(tmp_path / "y")])
+        == 2
+    )
+    assert "--resume" in capsys.readouterr().err
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert (
+            cli.main(
+                [
+                    "simulate",
+                    "--object",
+                    "bar_clamp",
+                    "--out",
+                    str(tmp_path / "y"),
+                    "--resume",
+                ]
+            )
+            == 2
+        )
+    assert "not a legs_jax online session" in capsys.readouterr().err
+
+
+def test_resume_refuses_a_run_of_another_kind(tmp_path, capsys):
+    """--resume on a session that is not a simulated run, or of another object."""
+    with Session.create(tmp_path / "s", given_poses=given_poses()):
+        pass
+    args = ["simulate", "--object", "bar_clamp", "--out", str(tmp_path / "s")]
+    assert cli.main([*args, "--resume"]) == 2
+    assert "not a simulated run" in capsys.readouterr().err

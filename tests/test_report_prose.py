@@ -1,0 +1,38 @@
+"""The report's discussion states what Table I shows by computing it: which rows
+the proposed method is below or above, which differences are within the
+combined standard error, and how the lowest row compares with the oracle row."""
+
+from __future__ import annotations
+
+import pandas as pd
+
+from legs_jax import report as rp
+
+
+def _t1(values):
+    rows = [("dexnet_adv", m, "", 13, mean, se) for m, (mean, se) in values.items()]
+    return pd.DataFrame(
+        rows, columns=["set", "method", "variant", "n_objects", "mean", "se"]
+    )
+
+
+_ROWS = ("dexnet", "tql", "borges_100", "k100_ub", "borges_2000", "legs_no_as", "legs")
+_MEANS = (0.50, 0.30, 0.09, 0.05, 0.20, 0.21, 0.10)
+BASE = {
+    m: (v, 0.01 if m == "k100_ub" else 0.02) for m, v in zip(_ROWS, _MEANS, strict=True)
+}
+
+
+def test_comparisons_follow_the_numbers():
+    (text, _) = rp._prior_comparisons(_t1(BASE))
+    assert text.startswith("On Dex-Net Adversarial, LEGS (0.100) is below ")
+    assert "above BORGES (K_s=100) (0.090)" in text
+    assert "within the combined standard error of BORGES (K_s=100))" in text
+    assert "lowest compared row, BORGES (K_s=100) (0.090), is above" in text
+    assert "In the paper the lowest row here is BORGES (K_s=2000) and LEGS" in text
+    # other numbers, other sentences
+    moved = dict(BASE, legs=(0.04, 0.001), borges_100=(0.30, 0.001))
+    (text, _) = rp._prior_comparisons(_t1(moved))
+    assert "; above" not in text and "is below Dex-Net" in text
+    assert "every difference outside the combined standard error" in text
+    assert "lowest compared row, LEGS (0.040), is not above" in text
