@@ -279,6 +279,9 @@ def _draw_object(
             f"problem file of {name} has {pb.num_poses} poses, results use pose {pose}"
         )
         pb = None
+    if pb is not None and pb.meta.get("geometry") is False:
+        why_pb = f"problem file of {name} has no grasp or pose geometry"
+        pb = None
     if pb is not None:
         if pose is None:
             pose = _main_pose(pb)

@@ -135,8 +135,18 @@ _SCHEMA: dict[str, tuple[str, tuple[str, ...]]] = {
     "pose_valid": ("b", ("P",)),
 }
 _ARRAY_FIELDS = tuple(_SCHEMA)
+# Grasp and pose geometry: only drawing needs it, so a file may leave it out (an
+# abstract bandit problem); it then loads as zeros (identity pose transforms) and
+# ``meta["geometry"]`` is False.
+_GEOMETRY = (
+    "grasp_center",
+    "grasp_axis",
+    "grasp_width",
+    "grasp_height",
+    "pose_transform",
+)
 # Arrays the format requires in a file. pose_valid may be absent (all poses real).
-_REQUIRED = tuple(f for f in _ARRAY_FIELDS if f != "pose_valid")
+_REQUIRED = tuple(f for f in _ARRAY_FIELDS if f != "pose_valid" and f not in _GEOMETRY)
 
 
 def _validate(pb: Problem, path: str | os.PathLike | None) -> None:
@@ -285,6 +295,19 @@ def peek(path: str | os.PathLike) -> dict[str, Any]:
     }
 
 
+def _no_geometry(tpk: tuple[int, ...]) -> dict[str, np.ndarray]:
+    """Placeholder geometry of a problem without any: zeros, identity poses."""
+    T, P, K = tpk
+    f32 = np.float32
+    return {
+        "grasp_center": np.zeros((T, P, K, 3), f32),
+        "grasp_axis": np.zeros((T, P, K, 3), f32),
+        "grasp_width": np.zeros((T, P, K), f32),
+        "grasp_height": np.zeros((T, P, K), f32),
+        "pose_transform": np.tile(np.eye(4, dtype=f32), (P, 1, 1)),
+    }
+
+
 def load(path: str | os.PathLike) -> Problem:
     """Read and validate a problem file. Raises :class:`ProblemFileError`."""
     path = Path(path)
@@ -321,6 +344,14 @@ def load(path: str | os.PathLike) -> Problem:
                 raise ProblemFileError(path, "meta_json", f"unreadable ({e})") from None
     if "pose_valid" not in arrays:
         arrays["pose_valid"] = np.ones(arrays["landing"].shape[:1], dtype=bool)
+    absent = [f for f in _GEOMETRY if f not in arrays]
+    if absent:
+        if len(absent) < len(_GEOMETRY):
+            raise ProblemFileError(
+                path, absent[0], "missing array (give all of the geometry or none)"
+            )
+        arrays.update(_no_geometry(arrays["robustness"].shape))
+        meta = {**meta, "geometry": False}
     problem = Problem(name=name, meta=meta, **arrays)
     problem.validate(path)
     return problem

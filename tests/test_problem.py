@@ -220,3 +220,19 @@ def test_peek_reads_the_header_without_the_arrays(tmp_path: Path) -> None:
     (tmp_path / "bad.npz").write_bytes(b"not a zip")
     with pytest.raises(zipfile.BadZipFile):
         pm.peek(tmp_path / "bad.npz")
+
+
+def test_geometry_is_optional(tmp_path: Path, prob: pm.Problem) -> None:
+    """An abstract bandit problem (no grasp or pose geometry) loads and runs;
+    part of the geometry alone is refused."""
+    bandit = ("landing", "topple", "robustness", "prior", "valid", "pose_valid")
+    np.savez(tmp_path / "bandit.npz", **{f: getattr(prob, f) for f in bandit})
+    pb = pm.load(tmp_path / "bandit.npz")
+    assert pb.meta["geometry"] is False
+    np.testing.assert_array_equal(pb.robustness, prob.robustness)
+    assert not pb.grasp_center.any() and (pb.pose_transform == np.eye(4)).all()
+    assert pm.stack([pb]).shape == pm.stack([prob]).shape
+    partial = {f: getattr(prob, f) for f in (*bandit, "grasp_center")}
+    np.savez(tmp_path / "partial.npz", **partial)
+    with pytest.raises(pm.ProblemFileError, match="grasp_axis.*geometry or none"):
+        pm.load(tmp_path / "partial.npz")
