@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from legs_jax import engine, keys
-from legs_jax.methods.base import Config, HParams
+from legs_jax import methods as methods_mod
+from legs_jax.methods.base import Config
 from legs_jax.online._adapter import Loop, method_names
 from legs_jax.problem import stack
 from legs_jax.synthetic import make_problem
@@ -40,18 +41,23 @@ def setup():
 def test_loop_follows_the_engine_step_for_step(setup, method):
     tables = setup
     P, K = tables.p.shape[1:]
-    hp_vals = dict(engine.HPARAM_DEFAULTS, k=20, n=25)
-    cfg = Config(num_poses=P, num_grasps=K, k=20, n=25)
-    fn = engine.compiled(method, cfg, H, 10, None, trajectory=True, dirichlet=False)
+    m = methods_mod.get(method)
+    # k = 20, n = 25 for the methods that have them (active sets fill and pruning
+    # runs within H steps)
+    given_hp = {n: v for n, v in {"k": 20, "n": 25}.items() if n in m.defaults()}
+    hp_vals = dict(m.defaults(), **given_hp)
+    cfg = Config(num_poses=P, num_grasps=K, **{n: hp_vals[n] for n in m.static})
+    fn = engine.compiled(m, cfg, H, 10, None, trajectory=True, dirichlet=False)
     ks = keys.rollout_keys(4, np.zeros(B, int), np.zeros(B, int), np.arange(B))
-    hp = HParams(*(jnp.full(B, hp_vals[n], jnp.float32) for n in engine.TRACED_HPARAMS))
+    hp = m.traced_hparams(**{n: jnp.full(B, hp_vals[n], jnp.float32) for n in m.traced})
     t_dev = type(tables)(*(jnp.asarray(x) for x in tables))
     out = fn(t_dev, jnp.zeros(B, jnp.int32), ks, hp)
     q = np.asarray(tables.q[0])
     valid = np.asarray(tables.valid[0])
     p = np.asarray(tables.p[0])
     for r in range(B):
-        loop = Loop(method, P, K, {"k": 20, "n": 25}, keys.rollout_key(4, 0, 0, r))
+        loop = Loop(method, P, K, given_hp, keys.rollout_key(4, 0, 0, r))
+        assert loop.cfg == cfg
         pose = np.asarray(out["pose"][r])
         grasp = np.asarray(out["grasp"][r])
         reward = np.asarray(out["reward"][r])
