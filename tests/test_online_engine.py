@@ -90,3 +90,30 @@ def test_oracles_are_refused():
         Loop("k100_ub", 2, 10, {}, keys.rollout_key(0, 0, 0, 0))
     with pytest.raises(ConfigError, match="unknown method"):
         Loop("nope", 2, 10, {}, keys.rollout_key(0, 0, 0, 0))
+
+
+def test_hyperparameters_are_the_methods_own():
+    from legs_jax.errors import ConfigError
+    from legs_jax.online._adapter import check_hparams
+
+    assert check_hparams("legs", {"k": 5}, 10) == dict(
+        methods_mod.get("legs").defaults(), k=5
+    )
+    assert check_hparams("tql", None, 10) == {"epsilon": 0.1, "eta": 0.1}
+    with pytest.raises(ConfigError, match="unknown hyperparameter"):
+        check_hparams("dexnet", {"k": 5}, 10)
+    with pytest.raises(ConfigError, match="delta"):
+        check_hparams("legs", {"delta": 1.5}, 10)
+    # a session recorded with every method's hyperparameters (as sessions were
+    # before each method declared its own) resumes with the method's own
+    every = dict(methods_mod.column_defaults(), k=5, n=7, eta=0.3)
+    key = keys.rollout_key(0, 0, 0, 0)
+    for name in ("legs", "tql"):
+        m = methods_mod.get(name)
+        loop = Loop(name, 2, 10, every, key)
+        own = {n: every[n] for n in m.defaults()}
+        assert loop.hp_values == own
+        assert loop.cfg == Config(2, 10, **{n: own[n] for n in m.static})
+        assert loop.hp._fields == m.traced
+        for n in m.traced:
+            np.testing.assert_array_equal(loop.hp._asdict()[n], [np.float32(own[n])])
