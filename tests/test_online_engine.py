@@ -33,10 +33,7 @@ def setup():
 @pytest.mark.parametrize(
     "method",
     ["legs"]
-    + [
-        pytest.param(m, marks=pytest.mark.slow)
-        for m in ("borges_2000", "tql", "dexnet", "borges_100", "legs_no_as")
-    ],
+    + [pytest.param(m, marks=pytest.mark.slow) for m in method_names() if m != "legs"],
 )
 def test_loop_follows_the_engine_step_for_step(setup, method):
     tables = setup
