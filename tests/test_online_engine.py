@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from legs_jax import engine, keys
-from legs_jax.methods.base import Config, HParams
+from legs_jax import methods as methods_mod
+from legs_jax.methods.base import Config
 from legs_jax.online._adapter import Loop, method_names
 from legs_jax.problem import stack
 from legs_jax.synthetic import make_problem
@@ -32,26 +33,28 @@ def setup():
 @pytest.mark.parametrize(
     "method",
     ["legs"]
-    + [
-        pytest.param(m, marks=pytest.mark.slow)
-        for m in ("borges_2000", "tql", "dexnet", "borges_100", "legs_no_as")
-    ],
+    + [pytest.param(m, marks=pytest.mark.slow) for m in method_names() if m != "legs"],
 )
 def test_loop_follows_the_engine_step_for_step(setup, method):
     tables = setup
     P, K = tables.p.shape[1:]
-    hp_vals = dict(engine.HPARAM_DEFAULTS, k=20, n=25)
-    cfg = Config(num_poses=P, num_grasps=K, k=20, n=25)
-    fn = engine.compiled(method, cfg, H, 10, None, trajectory=True, dirichlet=False)
+    m = methods_mod.get(method)
+    # k = 20, n = 25 for the methods that have them (active sets fill and pruning
+    # runs within H steps)
+    given_hp = {n: v for n, v in {"k": 20, "n": 25}.items() if n in m.defaults()}
+    hp_vals = dict(m.defaults(), **given_hp)
+    cfg = Config(num_poses=P, num_grasps=K, **{n: hp_vals[n] for n in m.static})
+    fn = engine.compiled(m, cfg, H, 10, None, trajectory=True, dirichlet=False)
     ks = keys.rollout_keys(4, np.zeros(B, int), np.zeros(B, int), np.arange(B))
-    hp = HParams(*(jnp.full(B, hp_vals[n], jnp.float32) for n in engine.TRACED_HPARAMS))
+    hp = m.traced_hparams(**{n: jnp.full(B, hp_vals[n], jnp.float32) for n in m.traced})
     t_dev = type(tables)(*(jnp.asarray(x) for x in tables))
     out = fn(t_dev, jnp.zeros(B, jnp.int32), ks, hp)
     q = np.asarray(tables.q[0])
     valid = np.asarray(tables.valid[0])
     p = np.asarray(tables.p[0])
     for r in range(B):
-        loop = Loop(method, P, K, {"k": 20, "n": 25}, keys.rollout_key(4, 0, 0, r))
+        loop = Loop(method, P, K, given_hp, keys.rollout_key(4, 0, 0, r))
+        assert loop.cfg == cfg
         pose = np.asarray(out["pose"][r])
         grasp = np.asarray(out["grasp"][r])
         reward = np.asarray(out["reward"][r])
@@ -84,3 +87,30 @@ def test_oracles_are_refused():
         Loop("k100_ub", 2, 10, {}, keys.rollout_key(0, 0, 0, 0))
     with pytest.raises(ConfigError, match="unknown method"):
         Loop("nope", 2, 10, {}, keys.rollout_key(0, 0, 0, 0))
+
+
+def test_hyperparameters_are_the_methods_own():
+    from legs_jax.errors import ConfigError
+    from legs_jax.online._adapter import check_hparams
+
+    assert check_hparams("legs", {"k": 5}, 10) == dict(
+        methods_mod.get("legs").defaults(), k=5
+    )
+    assert check_hparams("tql", None, 10) == {"epsilon": 0.1, "eta": 0.1}
+    with pytest.raises(ConfigError, match="unknown hyperparameter"):
+        check_hparams("dexnet", {"k": 5}, 10)
+    with pytest.raises(ConfigError, match="delta"):
+        check_hparams("legs", {"delta": 1.5}, 10)
+    # a session recorded with every method's hyperparameters (as sessions were
+    # before each method declared its own) resumes with the method's own
+    every = dict(methods_mod.column_defaults(), k=5, n=7, eta=0.3)
+    key = keys.rollout_key(0, 0, 0, 0)
+    for name in ("legs", "tql"):
+        m = methods_mod.get(name)
+        loop = Loop(name, 2, 10, every, key)
+        own = {n: every[n] for n in m.defaults()}
+        assert loop.hp_values == own
+        assert loop.cfg == Config(2, 10, **{n: own[n] for n in m.static})
+        assert loop.hp._fields == m.traced
+        for n in m.traced:
+            np.testing.assert_array_equal(loop.hp._asdict()[n], [np.float32(own[n])])

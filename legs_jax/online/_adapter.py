@@ -7,7 +7,12 @@ the pose just grasped, in the engine's order and with the engine's key streams
 (method draws of step t from ``fold_in(method_key, t)``, check c from
 ``fold_in(check_key, c)``). The Dirichlet bound is
 :func:`legs_jax.engine.dirichlet_quantiles`. Every function is jitted once per
-(method, pose capacity P, reservoir size K, k, n).
+(method, pose capacity P, reservoir size K, the method's static hyperparameters).
+
+Hyperparameters are the method's own (``method.hparams``), validated by the
+registry's rules (:func:`legs_jax.methods.parse_grid`, as :func:`legs_jax.engine.run`
+does): the static ones set :class:`Config`, the traced ones are the method's
+``traced_hparams`` NamedTuple with one row.
 
 Poses appear during a session. The tables hold a fixed capacity of P poses; a
 pose without a reservoir has no valid grasp. When a pose gets its reservoir the
@@ -30,22 +35,23 @@ from legs_jax import engine
 from legs_jax import keys as keys_mod
 from legs_jax import methods as methods_mod
 from legs_jax.errors import ConfigError
-from legs_jax.methods.base import Config, Ctx, HParams, Tables
+from legs_jax.methods.base import Config, Ctx, Method, Tables
 
 __all__ = ["ORACLES", "Loop", "method_names", "check_hparams"]
 
-# Methods that read the ground truth p: they cannot run on a robot.
-ORACLES = ("k100_ub",)
+# Methods that read the ground truth p (declared ``oracle``): they cannot run on a
+# robot.
+ORACLES = tuple(m for m in methods_mod.names() if methods_mod.get(m).oracle)
 
 
 def method_names() -> tuple[str, ...]:
     """Registered methods that can run online (every one but the oracles)."""
-    return tuple(m for m in methods_mod.names() if m not in ORACLES)
+    return tuple(m for m in methods_mod.names() if not methods_mod.get(m).oracle)
 
 
-def check_hparams(method: str, hparams: Mapping | None, K: int) -> dict:
-    """Validated hyperparameters (the engine's rules), one value each."""
-    if method in ORACLES:
+def _method(method: str) -> Method:
+    """The registered method ``method``, refusing oracles and unknown names."""
+    if method in methods_mod.names() and methods_mod.get(method).oracle:
         raise ConfigError(
             f"{method} reads the ground-truth success probabilities and cannot run "
             f"on a robot; choose one of {', '.join(method_names())}"
@@ -54,16 +60,38 @@ def check_hparams(method: str, hparams: Mapping | None, K: int) -> dict:
         raise ConfigError(
             f"unknown method {method!r}; choose one of {', '.join(method_names())}"
         )
+    return methods_mod.get(method)
+
+
+def check_hparams(method: str, hparams: Mapping | None, K: int) -> dict:
+    """Validated hyperparameters of ``method`` (the engine's rules), one value
+    each: every one of the method's own, the integer ones as int."""
+    m = _method(method)
     for name, v in (hparams or {}).items():
         if not isinstance(v, (int, float)) or isinstance(v, bool):
             raise ConfigError(f"hyperparameter {name} must be a number, got {v!r}")
-    _, hp = engine._hparam_grid(method, dict(hparams or {}), K)
+    _, hp = methods_mod.parse_grid(m, dict(hparams or {}), K)
     return {
         name: (
-            int(hp[name][0]) if name in engine.STATIC_HPARAMS else float(hp[name][0])
+            int(hp[name][0])
+            if name in m.static or np.issubdtype(hp[name].dtype, np.integer)
+            else float(hp[name][0])
         )
-        for name in engine.HPARAM_DEFAULTS
+        for name in m.defaults()
     }
+
+
+def _own(method: str, hparams: Mapping | None) -> dict:
+    """``hparams`` without the hyperparameters of other methods.
+
+    A session recorded before each method declared its own hyperparameters holds
+    every method's (s, prior_offset, δ, γ, ε, η, k, n); the others were ignored
+    then and are dropped here, so that such a session resumes. Names no method
+    has are kept (and refused by :func:`check_hparams`).
+    """
+    own = set(_method(method).defaults())
+    every = set(methods_mod.column_defaults())
+    return {n: v for n, v in (hparams or {}).items() if n in own or n not in every}
 
 
 def _order(q: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -73,7 +101,7 @@ def _order(q: np.ndarray, valid: np.ndarray) -> np.ndarray:
 
 @functools.lru_cache(maxsize=32)
 def _programs(method: str, cfg: Config):
-    m = methods_mod.get(method)
+    m = _method(method)
     P = cfg.num_poses
 
     def ctx(tables, hp):
@@ -149,24 +177,25 @@ class Loop:
       method: a registered method (not an oracle).
       num_poses: the pose capacity P.
       num_grasps: the reservoir size K.
-      hparams: overrides of :data:`legs_jax.engine.HPARAM_DEFAULTS`.
+      hparams: overrides of the method's defaults (``method.hparams``); those of
+        other methods are ignored (:func:`_own`).
       rollout_key: a typed key (:func:`legs_jax.keys.rollout_key`).
     """
 
     def __init__(self, method, num_poses, num_grasps, hparams, rollout_key):
         self.method = method
-        self.hp_values = check_hparams(method, hparams, num_grasps)
+        m = _method(method)
+        self.hp_values = check_hparams(method, _own(method, hparams), num_grasps)
         self.cfg = Config(
             num_poses=int(num_poses),
             num_grasps=int(num_grasps),
-            k=self.hp_values["k"],
-            n=self.hp_values["n"],
+            **{name: self.hp_values[name] for name in m.static},
         )
-        self.hp = HParams(
-            *(
-                jnp.full(1, self.hp_values[n], jnp.float32)
-                for n in engine.TRACED_HPARAMS
-            )
+        self.hp = m.traced_hparams(
+            **{
+                name: jnp.full(1, self.hp_values[name], jnp.float32)
+                for name in m.traced
+            }
         )
         P, K = self.cfg.num_poses, self.cfg.num_grasps
         self.q = np.zeros((P, K), np.float32)

@@ -54,8 +54,8 @@ def _session_args(p: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="NAME=VALUE",
-        help="method hyperparameter (s, prior_offset, delta, gamma, epsilon, eta, "
-        "k, n), repeatable",
+        help="one of the method's own hyperparameters (legs: s, prior_offset, "
+        "delta, gamma, k, n; tql: epsilon, eta; ...), repeatable",
     )
 
 

@@ -108,8 +108,8 @@ class Session:
 
         Args:
           method: a registered method that does not read ground truth.
-          hparams: overrides of the engine's defaults (s, prior_offset, δ, γ, ε,
-            η, k, n).
+          hparams: overrides of the method's own defaults (``method.hparams``,
+            e.g. s, prior_offset, δ, γ, k, n for LEGS).
           seed: seeds the method's draws (the engine's key streams).
           max_poses: pose capacity (a static shape).
           reservoir_size: grasps per new pose's reservoir (K).
