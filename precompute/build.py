@@ -276,7 +276,7 @@ def build_problem(
             "pose frame: table z=0, z up, centre of mass above the origin"
         ),
         "repairs": list(mesh.repairs),
-        "params": dataclasses.asdict(params),
+        "params": _meta_params(params),
         "gripper": G.gripper_params(),
         **_prior_meta(params),
         "topple_tilts": {
@@ -331,9 +331,21 @@ def _prior_meta(params: BuildParams) -> dict:
             "learned GQ-CNN-style network (weights sha256 "
             f"{constants['weights_sha256'][:12]})"
         )
-    else:
-        label = "synthetic GQ-CNN stand-in (not a learned network)"
-    return {"prior_kind": params.prior, "prior": constants, "prior_label": label}
+        return {"prior_kind": "learned", "prior": constants, "prior_label": label}
+    # a synthetic build's meta is as it was before the learned prior existed (no
+    # prior_kind: readers take its absence as synthetic), so its files stay
+    # byte-identical and results pinned to them stay current
+    label = "synthetic GQ-CNN stand-in (not a learned network)"
+    return {"prior": constants, "prior_label": label}
+
+
+def _meta_params(params: BuildParams) -> dict:
+    """The build parameters as meta records them (the prior field only for a
+    learned build, for the same reason as :func:`_prior_meta`)."""
+    d = dataclasses.asdict(params)
+    if params.prior != "learned":
+        del d["prior"]
+    return d
 
 
 @dataclasses.dataclass(frozen=True)
@@ -405,7 +417,9 @@ def reprior(path: Path, info, params: BuildParams) -> bool:
         q = synthetic_prior(params, info.name, pb.robustness, pb.valid)
     new_meta = dict(pb.meta)
     new_meta.update(_prior_meta(params))
-    new_meta["params"] = dataclasses.asdict(params)  # its prior field included
+    new_meta["params"] = _meta_params(params)
+    if params.prior != "learned":
+        new_meta.pop("prior_kind", None)
     new_meta["build_hash"] = build_hash(
         mesh_sha, info.units, info.name, params, info.fit
     )
