@@ -290,6 +290,14 @@ def _print_plan(plan: ExperimentPlan, out: Path) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    import signal
+    import threading
+
+    from legs_jax.sweep import execute as _execute
+
+    _execute._INTERRUPTED.clear()
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, _execute._on_sigint)
     parser = build_parser()
     a = parser.parse_args(argv)
     _validate_args(parser, a)

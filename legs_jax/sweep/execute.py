@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import socket
+import threading
 import time
 from collections import OrderedDict
 from collections.abc import Callable
@@ -166,10 +167,28 @@ class _Progress:
         self.bar.close()
 
 
+# Ctrl-C: Python raises KeyboardInterrupt wherever the main thread is, and one
+# raised inside a garbage-collection callback or a __del__ (JAX runs such
+# callbacks) is printed and swallowed, so the sweep would run on. The handler also
+# records the signal, and the loop checks it at every mini-batch and chunk.
+_INTERRUPTED = threading.Event()
+
+
+def _on_sigint(signum, frame) -> None:
+    _INTERRUPTED.set()
+    raise KeyboardInterrupt
+
+
+def _check_interrupt() -> None:
+    if _INTERRUPTED.is_set():
+        raise KeyboardInterrupt
+
+
 def _engine_progress(bar: _Progress, rollouts: int) -> Callable[[int], None]:
     """The engine reports the number of rollouts done after each mini-batch."""
 
     def cb(done: int) -> None:
+        _check_interrupt()
         bar.fraction(done / max(rollouts, 1))
 
     return cb
@@ -285,6 +304,7 @@ def run_experiment(
         )
         cache = _ProblemCache()
         for c in todo:
+            _check_interrupt()
             if res.chunk_done(chunks_dir, c.id):  # finished by another process
                 bar.skip(c.work)
                 continue
@@ -297,6 +317,7 @@ def run_experiment(
             res.write_chunk(chunks_dir, c.id, tables, meta)
             computed += 1
             bar.end_chunk(c.rollouts)
+        _check_interrupt()
     except KeyboardInterrupt:
         if bar is not None:
             bar.close()
