@@ -174,8 +174,16 @@ class _Progress:
 _INTERRUPTED = threading.Event()
 
 
+_SWALLOWING = {"_xla_gc_callback", "__del__"}  # where an exception is swallowed
+
+
 def _on_sigint(signum, frame) -> None:
     _INTERRUPTED.set()
+    f = frame
+    while f is not None:
+        if f.f_code.co_name in _SWALLOWING:
+            return  # the loop's next check raises it, with no warning printed
+        f = f.f_back
     raise KeyboardInterrupt
 
 
