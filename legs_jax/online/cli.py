@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from legs_jax._jax_cache import compile_cache
 from legs_jax.errors import ConfigError
 from legs_jax.online.errors import InputError, OrderError, StateError
 
@@ -67,27 +68,6 @@ def _cache_arg(p: argparse.ArgumentParser) -> None:
         "compiling (default $JAX_COMPILATION_CACHE_DIR, else "
         "$XDG_CACHE_HOME/legs_jax/jax or ~/.cache/legs_jax/jax; 'off' disables)",
     )
-
-
-def _compile_cache(option: str | None) -> None:
-    """Turn on JAX's persistent compilation cache (results do not depend on it)."""
-    import os
-
-    if option == "off":
-        return
-    path = option or os.environ.get("JAX_COMPILATION_CACHE_DIR")
-    if not path:
-        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(
-            os.path.expanduser("~"), ".cache"
-        )
-        path = os.path.join(base, "legs_jax", "jax")
-    try:
-        os.makedirs(path, exist_ok=True)
-    except OSError:
-        return  # a read-only home: run without the cache
-    import jax
-
-    jax.config.update("jax_compilation_cache_dir", path)
 
 
 def _hparams(items) -> dict:
@@ -249,10 +229,10 @@ def main(argv=None) -> int:
         return 2
     try:
         if args.command == "serve":
-            _compile_cache(args.compile_cache)
+            compile_cache(args.compile_cache)
             return _serve(args)
         if args.command == "simulate":
-            _compile_cache(args.compile_cache)
+            compile_cache(args.compile_cache)
             return _simulate(args)
         if args.command == "recognition-table":
             from legs_jax.online.recognition_table import main as table_main
@@ -261,7 +241,7 @@ def main(argv=None) -> int:
         if args.command == "agreement":
             from legs_jax.online.agreement import main as agreement_main
 
-            _compile_cache(args.compile_cache)
+            compile_cache(args.compile_cache)
             return agreement_main(args)
         if args.command == "bench":
             from legs_jax.online.bench import main as bench_main

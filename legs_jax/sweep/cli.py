@@ -13,6 +13,7 @@ from typing import Any
 
 import sweeps
 from legs_jax import results as res
+from legs_jax._jax_cache import compile_cache
 from legs_jax.sweep.execute import finish_experiment, run_experiment
 from legs_jax.sweep.experiments import (
     _catalog,
@@ -22,7 +23,6 @@ from legs_jax.sweep.experiments import (
 )
 from legs_jax.sweep.hosts import (
     _barrier,
-    _compile_cache,
     _devices,
     _init_distributed,
     _set_device_flags,
@@ -315,7 +315,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         dist = _init_distributed(a)
         devices = _devices(a.devices)
-        _compile_cache(a.compile_cache)
+        compile_cache(a.compile_cache)
         catalog = _catalog()
         a.declared = {m for n in EXPERIMENTS for m, _, _ in sweeps.get(n).ARMS}
         plans = []

@@ -11,26 +11,6 @@ from typing import Any
 from legs_jax.sweep.plan import MAX_DEFAULT_HOST_DEVICES, SweepError
 
 
-def _compile_cache(option: str | None) -> str | None:
-    """Turn on JAX's persistent compilation cache (results do not depend on it)."""
-    if option == "off":
-        return None
-    path = option or os.environ.get("JAX_COMPILATION_CACHE_DIR")
-    if not path:
-        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(
-            os.path.expanduser("~"), ".cache"
-        )
-        path = os.path.join(base, "legs_jax", "jax")
-    try:
-        os.makedirs(path, exist_ok=True)
-    except OSError:
-        return None  # a read-only home: run without the cache
-    import jax
-
-    jax.config.update("jax_compilation_cache_dir", path)
-    return path
-
-
 def _set_device_flags(n: int | None) -> None:
     """Ask XLA for host (CPU) devices: ``n``, or by default one per core (at most
     8), since separate CPU devices run rollouts in parallel. It only matters on a
