@@ -6,8 +6,9 @@ value is a grid that runs as one batch axis), ``SMOKE_OBJECTS`` and, where they
 differ from :data:`DEFAULTS`, ``TRIALS``, ``ROLLOUTS``, ``HORIZON``,
 ``RECORD_EVERY``, ``CHECK_EVERY``, ``CHECK_METHODS`` (methods whose Dirichlet
 checks go to checks.parquet) and ``ACTIVE_SET_METHODS`` (methods whose active
-sets go to active_set.parquet, trial 0, rollout 0). ``python -m legs_jax.sweep``
-runs them.
+sets go to active_set.parquet, trial 0, rollout 0), and ``PRIOR`` where the
+problems carry another prior than the default (``precompute --prior``).
+``python -m legs_jax.sweep`` runs them.
 """
 
 import importlib
@@ -15,7 +16,14 @@ from types import SimpleNamespace
 
 __all__ = ["DEFAULTS", "EXPERIMENTS", "get"]
 
-EXPERIMENTS = ("main", "case_study", "early_stopping", "prior_strength", "confidence")
+EXPERIMENTS = (
+    "main",
+    "case_study",
+    "early_stopping",
+    "prior_strength",
+    "confidence",
+    "prior_synthetic",
+)
 # The sizes of SPEC §7 (T x R = 10 x 10 runs of H = 3000 steps per object, the gap
 # every 10 steps, a check every 100) and nothing recorded beyond the runs.
 DEFAULTS = dict(
