@@ -114,7 +114,8 @@ def _run_chunk(
 
 
 class _Progress:
-    """tqdm bar over estimated work, showing rollouts per second and the ETA."""
+    """tqdm bar over estimated work (the planner's cost model), showing rollouts
+    per second and the ETA: the work left at the rate measured so far."""
 
     def __init__(self, total_work: float, total_rollouts: int, quiet: bool, desc: str):
         from tqdm.auto import tqdm
@@ -129,7 +130,7 @@ class _Progress:
             total=max(total_work, 1.0),
             disable=quiet,
             desc=desc,
-            bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}<{remaining}"
+            bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}, ETA {remaining}"
             "{postfix}",
             dynamic_ncols=True,
             mininterval=0.5,
