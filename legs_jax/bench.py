@@ -56,6 +56,8 @@ PROXY = {
     "k100_ub": "tql",
     "borges_100": "legs",
     "legs_no_as": "borges_2000",
+    "bayes_ucb_100": "legs",
+    "bayes_ucb_2000": "borges_2000",
 }
 # Dirichlet checks every this many steps for the methods the main sweep checks
 # (sweeps.main.CHECK_METHODS); the others run without, as in the sweep.

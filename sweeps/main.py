@@ -2,7 +2,8 @@
 
 All seven methods of SPEC §4 with their default hyperparameters, plus BORGES
 (K=2000) with the original BORGES code's prior (``prior_offset = 0, s = 5``, SPEC
-§3) as the extra variant ``orig_prior``. T x R = 10 x 10 runs of H = 3000 steps per
+§3) as the extra variant ``orig_prior``, and Bayes-UCB (K=100 and K=2000) as extra
+rows. T x R = 10 x 10 runs of H = 3000 steps per
 object. Dirichlet checks are recorded for LEGS only (they cost more than the cheap
 methods' own steps and only LEGS's are analysed).
 """
@@ -23,6 +24,9 @@ ARMS = (
     ("legs_no_as", "", {}),
     ("legs", "", {}),
     ("tql", "", {}),
+    # Extra rows, not the paper's: Bayes-UCB over the Beta posteriors.
+    ("bayes_ucb_100", "", {}),
+    ("bayes_ucb_2000", "", {}),
 )
 
 # Dirichlet checks of LEGS only (sweeps.DEFAULTS holds the rest).

@@ -108,7 +108,14 @@ def test_experiment_modules_declare_valid_arms(name):
 def test_paper_grids_and_extra_row():
     main = [sweep.make_arm(*a) for a in sweeps.get("main").ARMS]
     paper = set(sweeps.get("main").TABLE_ORDER)
-    assert {a.method for a in main} == paper and paper <= set(methods.names())
+    extra = {"bayes_ucb_100", "bayes_ucb_2000"}  # Table I's rows beyond the paper's
+    assert {a.method for a in main} == paper | extra
+    assert paper | extra <= set(methods.names())
+    synthetic = [sweep.make_arm(*a) for a in sweeps.get("prior_synthetic").ARMS]
+    assert [a.label for a in synthetic] == [
+        a.method for a in main if a.method in paper and not a.variant
+    ]
+    assert sweeps.get("prior_synthetic").PRIOR == "synthetic"
     orig = [a for a in main if a.variant == "orig_prior"]
     assert len(orig) == 1 and orig[0].method == "borges_2000"
     assert dict(orig[0].grid[0])["prior_offset"] == 0.0
@@ -371,19 +378,25 @@ def test_cli_runs_and_writes_schema(tmp_path, probs, fake_engine, capsys):
     need += ["seed", *results.HPARAM_COLUMNS, "horizon", "final_gap"]
     need += ["final_performance", "successes", "distinct_grasps", "replacements"]
     assert list(runs.columns) == need
-    assert len(runs) == 8 * 2 * 2 * 2  # arms x objects x trials x rollouts
+    n_arms = len(sweeps.get("main").ARMS)
+    assert len(runs) == n_arms * 2 * 2 * 2  # arms x objects x trials x rollouts
     orig = runs[runs.variant == "orig_prior"]
     assert set(orig.method) == {"borges_2000"} and set(orig.prior_offset) == {0.0}
     curves = pd.read_parquet(d / "curves.parquet")
-    assert set(curves.n_runs) == {4} and len(curves) == 8 * 2 * 21
+    assert set(curves.n_runs) == {4} and len(curves) == n_arms * 2 * 21
     checks = pd.read_parquet(d / "checks.parquet")
     assert set(checks.method) == {"legs"} and len(checks) == 2 * 2 * 2 * 2
     man = json.loads((d / "manifest.json").read_text())
     assert man["status"] == "complete"
     assert man["chunks_done"] == man["chunks_total"] == len(man["chunks"])
     assert all(c["wall_s"] >= 0 for c in man["chunks"].values())
+    # compile time apart from run time, per chunk and in all
+    assert all(c["compile_s"] >= 0 and c["run_s"] >= 0 for c in man["chunks"].values())
+    assert man["compile_s_chunks"] >= 0
     sha = results.sha256_file(probs[0])
     assert man["problem_files"]["alpha"]["sha256"] == sha
+    # synthetic.make_problem records no prior: "unknown"
+    assert man["problem_files"]["alpha"]["prior"] == man["priors"][0] == "unknown"
     assert man["versions"]["jax"] and man["sessions"][0]["devices"]["count"] >= 1
     assert "commit" in man["git"]
 
