@@ -734,3 +734,38 @@ def test_reuse_needs_the_same_problem_file_and_configuration(
     assert engine_calls("early_stopping", b, 200) == 1  # another file
     assert engine_calls("early_stopping", a, 100, "--overwrite") == 1  # another H
     assert engine_calls("early_stopping", a, 200, "--overwrite") == 0  # copied
+
+
+def test_shape_buckets_trade_programs_for_padding():
+    """Fewer pose buckets compile fewer programs and pad more poses (the work
+    run also counts the padded rows of the mini-batches, whatever the buckets)."""
+    from legs_jax.sweep import shapes
+
+    objects = [
+        _obj(f"o{p}", p, 120, oid=i) for i, p in enumerate((2, 3, 5, 7, 9, 12, 17, 30))
+    ]
+    arms = [("legs", "", {}), ("borges_2000", "", {}), ("tql", "", {})]
+
+    def make_plans():
+        plan = _plan(objects, arms, trials=10, rollouts=10)
+        plan.chunks = sweep.plan_chunks(plan)
+        return [plan]
+
+    rows = {r["buckets"]: r for r in shapes.tradeoff(make_plans, n_dev=2)}
+    none = rows["none (every pose count its own)"]
+    adopted = rows["8, 16, 32 (adopted)"]
+    one = rows["32"]
+    assert none["programs"] > adopted["programs"] > one["programs"] >= 3
+    assert min(r["work"] for r in rows.values()) >= 1.0
+    assert adopted["work"] < one["work"]
+    # every pose count of the catalogue's range lands in a bucket that holds it
+    assert [sweep.plan._pose_bucket(p) for p in (1, 8, 9, 16, 17, 32, 33, 70)] == [
+        8,
+        8,
+        16,
+        16,
+        32,
+        32,
+        64,
+        96,
+    ]

@@ -200,9 +200,9 @@ def make_arm(method: str, variant: str, hparams: Mapping[str, Any]) -> Arm:
 # (a multiple of the last beyond it), so that a method compiles one program per
 # bucket for the whole sweep. Padded poses are masked and their Dirichlet draws
 # are keyed by pose, so padding changes no result; it costs the checks' draws of
-# the padded poses. Chosen from the catalogue (BENCHMARKS.md, "Fixed costs"):
-# with the powers of two the sweep compiled 58 programs, with these 39, for 1 %
-# more estimated work.
+# the padded poses. Chosen from the catalogue: `python -m legs_jax.sweep.shapes`
+# prints the programs and the padded work of several choices (BENCHMARKS.md,
+# "Fixed costs").
 POSE_BUCKETS = (8, 16, 32)
 
 

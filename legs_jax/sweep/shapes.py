@@ -1,0 +1,181 @@
+"""The compiled programs of a sweep, and what padding to fewer shapes costs.
+
+``python -m legs_jax.sweep.shapes`` prints, for the experiments of ``--all`` and a
+few choices of pose buckets, how many distinct programs the sweep compiles (one
+per method, static configuration and array shapes) and how much padded work the
+planner's cost model adds over running every object at its own pose count
+(BENCHMARKS.md, "Fixed costs"). It reads the problem files' headers only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import sys
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+from legs_jax.sweep import plan as plan_mod
+from legs_jax.sweep.plan import ExperimentPlan
+
+# Bucket choices compared by the table: (pose buckets, chunks padded to their
+# group's largest shapes); None: powers of two, (): none.
+CANDIDATES: dict[str, tuple[tuple[int, ...] | None, bool]] = {
+    "none (every pose count its own)": ((), True),
+    "powers of two, each chunk its own shapes (before)": (None, False),
+    "powers of two": (None, True),
+    "8, 16, 32 (adopted)": ((8, 16, 32), True),
+    "4, 12, 32": ((4, 12, 32), True),
+    "8, 32": ((8, 32), True),
+    "32": ((32,), True),
+}
+
+
+def _chunk_programs(plan: ExperimentPlan, c, n_dev: int):
+    """(program key, rollouts, rollouts run with the mini-batch padding) of each
+    static group of a chunk, as :func:`legs_jax.engine.run` derives them."""
+    from legs_jax import engine
+    from legs_jax.methods.base import Config
+
+    arm = plan.arms[c.arm]
+    m = plan_mod._method(arm.method)
+    G, O, T = len(arm.grid), len(c.objects), len(c.trials)  # noqa: E741
+    pairs = max(O * T, c.shape_of[0])
+    n_pad = 1 << max(0, (pairs - 1).bit_length())
+    groups: dict[tuple[int, ...], int] = {}
+    for point in arm.grid:
+        d = dict(point)
+        st = tuple(int(d[n]) for n in m.static)
+        groups[st] = groups.get(st, 0) + 1
+    for st, g in groups.items():
+        cfg = Config(
+            num_poses=c.num_poses,
+            num_grasps=c.num_grasps,
+            **dict(zip(m.static, st, strict=True)),
+        )
+        rows = g * O * T * plan.rollouts
+        like = max(rows, c.shape_of[1] * g // G)
+        largest = engine._default_batch_size(m, "cpu", cfg)
+        quantum = 1 if largest <= 64 else 16
+        per = engine._batch_rows(-(-like // n_dev), largest, quantum)
+        every = plan.check_every if c.record_checks else None
+        key = (m.name, cfg, every, c.record_active_set, n_pad, per)
+        run = -(-rows // (per * n_dev)) * per * n_dev
+        yield key, rows, run
+
+
+def program_keys(plans: Sequence[ExperimentPlan], n_dev: int) -> set[tuple[Any, ...]]:
+    """The distinct programs the engine compiles for these plans on ``n_dev`` CPU
+    devices: (method, static configuration, checks, active set, table rows,
+    rollouts a device)."""
+    return {
+        key
+        for plan in plans
+        for c in plan.chunks
+        for key, _, _ in _chunk_programs(plan, c, n_dev)
+    }
+
+
+def padded_work(plans: Sequence[ExperimentPlan], n_dev: int) -> float:
+    """Work run (padded poses and padded mini-batches) over the work of every
+    object at its own pose count, by the planner's cost model."""
+    padded = own = 0.0
+    for plan in plans:
+        for c in plan.chunks:
+            arm = plan.arms[c.arm]
+            every = plan.check_every if c.record_checks else 0
+            per_object = len(arm.grid) * len(c.trials) * plan.rollouts
+            w = plan_mod._rollout_work(
+                arm, c.num_poses, c.num_grasps, plan.horizon, every
+            )
+            rows = run = 0
+            for _, r, rr in _chunk_programs(plan, c, n_dev):
+                rows, run = rows + r, run + rr
+            padded += w * per_object * len(c.objects) * run / rows
+            for i in c.objects:
+                p = plan.objects[i].num_poses
+                own += per_object * plan_mod._rollout_work(
+                    arm, p, c.num_grasps, plan.horizon, every
+                )
+    return padded / own if own else 1.0
+
+
+@contextlib.contextmanager
+def _buckets(choice: tuple[int, ...] | None) -> Iterator[None]:
+    """Plan with other pose buckets (None: powers of two; (): none)."""
+    old_buckets, old_fn = plan_mod.POSE_BUCKETS, plan_mod._pose_bucket
+    if choice is None:
+        plan_mod._pose_bucket = lambda p: 1 << max(0, (p - 1).bit_length())
+    elif not choice:
+        plan_mod._pose_bucket = lambda p: p
+    else:
+        plan_mod.POSE_BUCKETS = choice
+    try:
+        yield
+    finally:
+        plan_mod.POSE_BUCKETS, plan_mod._pose_bucket = old_buckets, old_fn
+
+
+def tradeoff(
+    make_plans, n_dev: int = 2, candidates: dict | None = None
+) -> list[dict[str, Any]]:
+    """Programs and padded work of each bucket choice; ``make_plans()`` plans the
+    experiments under the current buckets."""
+    rows = []
+    for label, (choice, grouped) in (candidates or CANDIDATES).items():
+        with _buckets(choice):
+            plans = make_plans()
+            if not grouped:
+                for plan in plans:
+                    plan.chunks = [
+                        dataclasses.replace(c, shape_of=(0, 0)) for c in plan.chunks
+                    ]
+            keys = program_keys(plans, n_dev)
+            rows.append(
+                {
+                    "buckets": label,
+                    "programs": len(keys),
+                    "methods": len({k[0] for k in keys}),
+                    "work": padded_work(plans, n_dev),
+                }
+            )
+    return rows
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(
+        prog="python -m legs_jax.sweep.shapes",
+        description="Compiled programs of `python -m legs_jax.sweep --all` and the "
+        "padded work of each choice of pose buckets (the cost model's estimate).",
+    )
+    p.add_argument("--devices", type=int, default=2, help="CPU devices (default 2)")
+    a = p.parse_args(argv)
+    import sweeps
+    from legs_jax.sweep import cli, experiments
+
+    parser = cli.build_parser()
+    args = parser.parse_args(["--all", "--dry-run"])
+    cli._validate_args(parser, args)
+    catalog = experiments._catalog()
+    args.declared = {m for n in sweeps.EXPERIMENTS for m, _, _ in sweeps.get(n).ARMS}
+
+    def make_plans():
+        out = []
+        for name in sweeps.EXPERIMENTS:
+            plan = experiments._experiment_plan(name, args, catalog, Path("results"))
+            if plan is not None:
+                out.append(plan)
+        return out
+
+    rows = tradeoff(make_plans, a.devices)
+    print("| pose buckets | programs compiled | work run (cost model) |")
+    print("|---|---|---|")
+    for r in rows:
+        print(f"| {r['buckets']} | {r['programs']} | ×{r['work']:.3f} |")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
