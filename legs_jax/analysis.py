@@ -17,7 +17,7 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 import pandas as pd
 
-import sweeps
+import experiments
 
 __all__ = [
     "ARM_LABELS",
@@ -54,7 +54,7 @@ __all__ = [
     "winners",
 ]
 
-_MAIN = sweeps.get("main")
+_MAIN = experiments.get("main")
 
 
 def _table_order() -> tuple[str, ...]:
@@ -495,7 +495,7 @@ def first_legs_rollout(active_set: pd.DataFrame) -> pd.DataFrame:
     whose active sets are recorded)."""
     a = active_set
     if "method" in a.columns:
-        a = a[a["method"] == sweeps.get("case_study").ACTIVE_SET_METHODS[0]]
+        a = a[a["method"] == experiments.get("case_study").ACTIVE_SET_METHODS[0]]
     if "grid_index" in a.columns and len(a):
         a = a[a["grid_index"] == a["grid_index"].min()]
     for c in ("trial", "rollout"):

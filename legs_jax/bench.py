@@ -58,7 +58,7 @@ PROXY = {
     "legs_no_as": "borges_2000",
 }
 # Dirichlet checks every this many steps for the methods the main sweep checks
-# (sweeps.main.CHECK_METHODS); the others run without, as in the sweep.
+# (experiments.main.CHECK_METHODS); the others run without, as in the sweep.
 CHECK_EVERY = 100
 # Object sets of SPEC §6 (used when the mesh catalogue is not installed).
 SET_SIZES = {"dexnet_adv": 13, "egad_eval": 49}
@@ -351,9 +351,9 @@ def _problem(cfg: Settings):
 
 
 def _checked(method: str) -> bool:
-    import sweeps
+    import experiments
 
-    return method in sweeps.get("main").CHECK_METHODS
+    return method in experiments.get("main").CHECK_METHODS
 
 
 def bench_jax_engine(method: str, cfg: Settings, problem) -> dict[str, float]:
@@ -479,13 +479,13 @@ def projection(rates: dict[str, float]) -> dict[str, Any]:
     sweep records them, as the table measures it). Compilation and precompute are
     not included.
     """
-    import sweeps
+    import experiments
 
     per_exp = {}
     steps_total = 0.0
     seconds = 0.0
-    for name in sweeps.EXPERIMENTS:
-        mod = sweeps.get(name)
+    for name in experiments.EXPERIMENTS:
+        mod = experiments.get(name)
         n_obj = _count_objects(mod.OBJECTS)
         exp_s = 0.0
         for method, _variant, hp in mod.ARMS:

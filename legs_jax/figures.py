@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-import sweeps
+import experiments
 from legs_jax import analysis as an
 from legs_jax import report as rp
 
@@ -49,8 +49,8 @@ __all__ = [
     "main",
 ]
 
-EXPERIMENTS = sweeps.EXPERIMENTS
-CASE_OBJECTS = tuple(sweeps.get("case_study").OBJECTS)
+EXPERIMENTS = experiments.EXPERIMENTS
+CASE_OBJECTS = tuple(experiments.get("case_study").OBJECTS)
 # None: the case-study object whose LEGS active set changes most (the most
 # distinct members on one pose), which shows the pruning best.
 ACTIVE_OBJECT: str | None = None
@@ -536,7 +536,9 @@ def _early_stopping_checks(res: Results) -> tuple[pd.DataFrame, str, int]:
             f"{res.path('main', 'checks')} to fall back on (run `python -m "
             "legs_jax.sweep --experiment early_stopping`)"
         )
-    checks = an.select_arm(checks, sweeps.get("early_stopping").CHECK_METHODS[0], "")
+    checks = an.select_arm(
+        checks, experiments.get("early_stopping").CHECK_METHODS[0], ""
+    )
     if checks.empty:
         raise MissingResults(f"{res.path(exp, 'checks')} has no LEGS checks")
     return checks, exp, res.horizon(exp)
@@ -779,7 +781,7 @@ def active_set_figure(
     k_text = "k"
     if res.has("case_study", "runs"):
         runs = res.table("case_study", "runs")
-        shown = sweeps.get("case_study").ACTIVE_SET_METHODS[0]
+        shown = experiments.get("case_study").ACTIVE_SET_METHODS[0]
         ks = runs.loc[runs["method"] == shown, "k"].unique() if "k" in runs else []
         if len(ks) == 1:
             k_text = str(int(ks[0]))
@@ -843,7 +845,7 @@ def early_stopping_tables(info: dict[str, Any], out: Path) -> list[Path]:
 def appendix_tables(
     res: Results, out: Path, experiment: str, param: str
 ) -> tuple[list[Path], dict[str, Any]]:
-    method = sweeps.get(experiment).ARMS[0][0]  # the one method of the sweep
+    method = experiments.get(experiment).ARMS[0][0]  # the one method of the sweep
     runs = an.select_arm(res.table(experiment, "runs"), method, "", vary=(param,))
     if runs.empty:
         raise MissingResults(f"{res.path(experiment, 'runs')} has no LEGS runs")

@@ -14,7 +14,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-import sweeps
+import experiments
 from legs_jax import analysis as an
 from legs_jax._files import atomic_write
 
@@ -576,7 +576,7 @@ def paper_value(mapping: Mapping, *keys):
 
 
 # ==================================================================== report
-_EXPERIMENTS = sweeps.EXPERIMENTS
+_EXPERIMENTS = experiments.EXPERIMENTS
 
 
 def _f(x: float | None, d: int = 3) -> str:

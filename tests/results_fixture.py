@@ -25,7 +25,7 @@ from types import SimpleNamespace
 import numpy as np
 import pandas as pd
 
-import sweeps
+import experiments
 from legs_jax import problem as problem_mod
 from legs_jax import results as res
 from legs_jax import synthetic
@@ -35,7 +35,7 @@ EGAD = ("A0", "C3", "F6")
 CASE = ("climbing_hold", "C3", "F6", "turbine_housing")
 SET_OF = {**{o: "dexnet_adv" for o in DEXNET}, **{o: "egad_eval" for o in EGAD}}
 OBJECT_ID = {o: i for i, o in enumerate(DEXNET + EGAD)}
-ARMS = sweeps.get("main").ARMS
+ARMS = experiments.get("main").ARMS
 # Typical final gap of each arm (roughly the paper's Table I).
 LEVEL = {
     ("dexnet", ""): 0.55,

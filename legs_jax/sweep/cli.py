@@ -11,7 +11,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-import sweeps
+import experiments
 from legs_jax import results as res
 from legs_jax._jax_cache import compile_cache
 from legs_jax.sweep.execute import finish_experiment, run_experiment
@@ -37,7 +37,7 @@ from legs_jax.sweep.store import (
 )
 
 # ====================================================================== arguments
-EXPERIMENTS = sweeps.EXPERIMENTS
+EXPERIMENTS = experiments.EXPERIMENTS
 
 
 def _int_at_least(minimum: int) -> Callable[[str], int]:
@@ -317,7 +317,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         devices = _devices(a.devices)
         compile_cache(a.compile_cache)
         catalog = _catalog()
-        a.declared = {m for n in EXPERIMENTS for m, _, _ in sweeps.get(n).ARMS}
+        a.declared = {m for n in EXPERIMENTS for m, _, _ in experiments.get(n).ARMS}
         plans = []
         for name in names:
             try:

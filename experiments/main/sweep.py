@@ -9,6 +9,7 @@ methods' own steps and only LEGS's are analysed).
 
 NAME = "main"
 DESCRIPTION = "Table I: all methods, all objects, final optimality gap"
+ORDER = 1  # place in --all, the figures and the report
 
 # Object set names (``dexnet_adv``, ``egad_eval``) or object names.
 OBJECTS = ("dexnet_adv", "egad_eval")
@@ -25,7 +26,7 @@ ARMS = (
     ("tql", "", {}),
 )
 
-# Dirichlet checks of LEGS only (sweeps.DEFAULTS holds the rest).
+# Dirichlet checks of LEGS only (experiments.DEFAULTS holds the rest).
 CHECK_METHODS = ("legs",)
 
 # Objects used by --smoke (synthetic problems carrying these names).
