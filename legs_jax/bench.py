@@ -38,10 +38,6 @@ from typing import Any
 
 import numpy as np
 
-# Methods of the table; the others get a rate in the full run (for the
-# projection) or borrow the rate of a method with the same per-step work.
-TABLE_METHODS = ("borges_2000", "legs", "tql")
-
 
 def _all_methods() -> tuple[str, ...]:
     """Every registered method (legs_jax.methods), in registry order (imported
@@ -51,12 +47,35 @@ def _all_methods() -> tuple[str, ...]:
     return methods.names()
 
 
-PROXY = {
-    "dexnet": "tql",
-    "k100_ub": "tql",
-    "borges_100": "legs",
-    "legs_no_as": "borges_2000",
-}
+def _table_methods() -> tuple[str, ...]:
+    """Methods of the table (their declaration's ``bench``); the others get a rate
+    in the full run (for the projection) or borrow the rate of their
+    ``bench_proxy``, a method with the same per-step work."""
+    from legs_jax import methods
+
+    return tuple(m for m in methods.names() if methods.get(m).bench)
+
+
+def _proxy() -> dict[str, str]:
+    """Method -> the table's method whose rate stands in for it (``bench_proxy``)."""
+    from legs_jax import methods
+
+    out = {}
+    for m in methods.names():
+        if methods.get(m).bench_proxy:
+            out[m] = methods.get(m).bench_proxy
+    return out
+
+
+def __getattr__(name: str):
+    # TABLE_METHODS and PROXY, read from the methods' declarations on first use.
+    if name == "TABLE_METHODS":
+        return _table_methods()
+    if name == "PROXY":
+        return _proxy()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 # Dirichlet checks every this many steps for the methods the main sweep checks
 # (experiments.main.CHECK_METHODS); the others run without, as in the sweep.
 CHECK_EVERY = 100
@@ -86,7 +105,7 @@ class Settings:
 
 def _with_table(methods: Sequence[str]) -> tuple[str, ...]:
     """The table's methods always run (the projection borrows their rates)."""
-    return tuple(m for m in _all_methods() if m in methods or m in TABLE_METHODS)
+    return tuple(m for m in _all_methods() if m in methods or m in _table_methods())
 
 
 def settings(quick: bool, methods: Sequence[str] | None) -> Settings:
@@ -105,7 +124,7 @@ def settings(quick: bool, methods: Sequence[str] | None) -> Settings:
             rollouts_sparse=256,
             reference_horizon=100,
             reference_seconds=0.3,
-            methods=_with_table(methods or TABLE_METHODS),
+            methods=_with_table(methods or _table_methods()),
             numpy_all_cores=False,
         )
     return Settings(
@@ -481,6 +500,7 @@ def projection(rates: dict[str, float]) -> dict[str, Any]:
     """
     import experiments
 
+    proxy = _proxy()
     per_exp = {}
     steps_total = 0.0
     seconds = 0.0
@@ -491,7 +511,7 @@ def projection(rates: dict[str, float]) -> dict[str, Any]:
         for method, _variant, hp in mod.ARMS:
             grid = max([len(v) for v in hp.values() if isinstance(v, tuple)] or [1])
             steps = n_obj * mod.TRIALS * mod.ROLLOUTS * mod.HORIZON * grid
-            rate = rates.get(method) or rates[PROXY[method]]
+            rate = rates.get(method) or rates[proxy[method]]
             steps_total += steps
             exp_s += steps / rate
         per_exp[name] = round(exp_s / 60.0, 2)
@@ -527,12 +547,13 @@ def run(cfg: Settings, quiet: bool = False) -> dict[str, Any]:
 
     problem = _problem(cfg)
     steps: dict[str, dict[str, float]] = {}
+    table = _table_methods()
     jax_rates: dict[str, float] = {}
     for method in cfg.methods:
         _say(f"engine: {method} (JAX)", quiet)
         row = bench_jax_engine(method, cfg, problem)
         jax_rates[method] = row["jax"]
-        if method in TABLE_METHODS:
+        if method in table:
             _say(f"engine: {method} (NumPy reference)", quiet)
             row["numpy"] = bench_reference(method, cfg, problem)
             row["ratio"] = row["jax"] / row["numpy"]
@@ -611,8 +632,9 @@ def format_table(r: dict[str, Any]) -> str:
         f" {'NumPy all cores':>16} {'ratio':>7} {'compile':>8}"
     )
     lines.append(header)
+    table = _table_methods()
     rows = r["steps_per_s"]
-    for method in sorted(rows, key=lambda m: (m not in TABLE_METHODS, m)):
+    for method in sorted(rows, key=lambda m: (m not in table, m)):
         row = rows[method]
         np_ = _fmt_rate(row["numpy"]) if "numpy" in row else "-"
         ratio = f"{row['ratio']:.1f}x" if "ratio" in row else "-"

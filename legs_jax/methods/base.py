@@ -222,7 +222,10 @@ class Method:
     competitor); ``cost(cfg)`` is the number of candidate grasps a step touches
     (planning) and ``dense`` says its per-step work and state are O(K) (smaller
     batches suit it). ``reference`` (or None) ``(problem, trial, hp)`` builds its
-    one-rollout NumPy twin (:mod:`legs_jax.reference`).
+    one-rollout NumPy twin (:mod:`legs_jax.reference`). ``bench`` makes it a row of
+    the benchmark's table (``legs_jax.bench``, timed against its NumPy twin);
+    ``bench_proxy`` names a method of that table with the same per-step work, whose
+    measured rate stands in for this one's when the benchmark projects a sweep.
     """
 
     name: str
@@ -251,6 +254,8 @@ class Method:
     cost: Callable[[Config], float] = lambda cfg: float(cfg.num_grasps)
     dense: bool = False
     reference: Callable[..., Any] | None = None
+    bench: bool = False
+    bench_proxy: str = ""
 
     def defaults(self) -> dict[str, float | int]:
         """Every hyperparameter with its default."""

@@ -12,6 +12,7 @@ from legs_jax.methods.base import Method
 METHOD = Method(
     name="dexnet",
     description="Dex-Net: argmax prior, no exploration (constant gap)",
+    bench_proxy="tql",
     **_fixed.FUNCTIONS,
     init=lambda ctx, cfg: _fixed.init(ctx, cfg, which="dexnet"),
     candidates=_fixed.candidates_dexnet,

@@ -10,6 +10,7 @@ from legs_jax.methods.base import TOP_FIXED, Method
 METHOD = Method(
     name="k100_ub",
     description="K100 upper bound: best true grasp of the top-100 by prior (oracle)",
+    bench_proxy="tql",
     **_fixed.FUNCTIONS,
     init=lambda ctx, cfg: _fixed.init(ctx, cfg, which="k100_ub"),
     candidates=_fixed.candidates_top,
