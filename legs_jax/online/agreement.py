@@ -42,7 +42,7 @@ SLACK = 0.02
 def online_curves(
     problem,
     *,
-    method: str = "legs",
+    method: str | None = None,
     rollouts: int,
     horizon: int,
     every: int,

@@ -33,12 +33,13 @@ Run "python -m legs_jax.online COMMAND --help" for a command's options.
 
 
 def _session_args(p: argparse.ArgumentParser) -> None:
-    from legs_jax.online._adapter import method_names
+    from legs_jax.online._adapter import default_method, method_names
 
     p.add_argument(
         "--method",
-        default="legs",
-        help=f"exploration method: {', '.join(method_names())} (default legs)",
+        default=default_method(),
+        help=f"exploration method: {', '.join(method_names())} (default "
+        f"{default_method()})",
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the method's draws (0)")
     p.add_argument(
@@ -55,8 +56,8 @@ def _session_args(p: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="NAME=VALUE",
-        help="one of the method's own hyperparameters (legs: s, prior_offset, "
-        "delta, gamma, k, n; tql: epsilon, eta; ...), repeatable",
+        help="one of the method's own hyperparameters (those its declaration "
+        "lists, e.g. LEGS: s, prior_offset, delta, gamma, k, n), repeatable",
     )
 
 
@@ -187,7 +188,11 @@ def build_parser() -> argparse.ArgumentParser:
         "gaps), and a figure. Optionally also sessions with recognition.",
     )
     p.add_argument("--problem", type=Path, required=True, help="problem file (.npz)")
-    p.add_argument("--method", default="legs", help="method (legs)")
+    from legs_jax.online._adapter import default_method
+
+    p.add_argument(
+        "--method", default=default_method(), help=f"method ({default_method()})"
+    )
     p.add_argument("--rollouts", type=int, default=30, help="online sessions (30)")
     p.add_argument(
         "--engine-rollouts", type=int, default=500, help="engine rollouts (500)"

@@ -44,7 +44,7 @@ class Simulation:
         folder,
         world: World,
         *,
-        method: str = "legs",
+        method: str | None = None,
         seed: int = 0,
         resume: bool = False,
         problem=None,
