@@ -38,6 +38,13 @@ from typing import Any
 
 import numpy as np
 
+_PROG = "python -m legs_jax.bench"
+_DESCRIPTION = (
+    "Measure exact Beta samples/s (legs_jax vs jax.random.beta vs NumPy), "
+    "rollout steps/s of the JAX engine vs the NumPy reference, and project "
+    "the wall time of the full sweep (python -m legs_jax.sweep --all)."
+)
+
 
 def _all_methods() -> tuple[str, ...]:
     """Every registered method (legs_jax.methods), in registry order (imported
@@ -657,14 +664,7 @@ def format_table(r: dict[str, Any]) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="python -m legs_jax.bench",
-        description=(
-            "Measure exact Beta samples/s (legs_jax vs jax.random.beta vs NumPy), "
-            "rollout steps/s of the JAX engine vs the NumPy reference, and project "
-            "the wall time of the full sweep (python -m legs_jax.sweep --all)."
-        ),
-    )
+    p = argparse.ArgumentParser(prog=_PROG, description=_DESCRIPTION)
     p.add_argument(
         "--json", action="store_true", help="print one JSON object instead of a table"
     )

@@ -50,6 +50,16 @@ __all__ = [
     "main",
 ]
 
+_PROG = "python -m legs_jax.figures"
+_DESCRIPTION = (
+    "Regenerate the paper's tables and figures from saved sweep results "
+    "(never reruns a sweep): Table I with win counts, per-object gaps, "
+    "Fig. 3 case study, Fig. 4 early stopping, the two appendix tables, "
+    "the active-set evolution of one LEGS rollout, and REPORT.md with "
+    "every number beside the paper's. Outputs whose results are missing "
+    "are skipped with a message naming the missing file (exit status 1)."
+)
+
 EXPERIMENTS = experiments.EXPERIMENTS
 
 _PNG_META = {"Software": None}
@@ -365,17 +375,7 @@ def generate(
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="python -m legs_jax.figures",
-        description=(
-            "Regenerate the paper's tables and figures from saved sweep results "
-            "(never reruns a sweep): Table I with win counts, per-object gaps, "
-            "Fig. 3 case study, Fig. 4 early stopping, the two appendix tables, "
-            "the active-set evolution of one LEGS rollout, and REPORT.md with "
-            "every number beside the paper's. Outputs whose results are missing "
-            "are skipped with a message naming the missing file (exit status 1)."
-        ),
-    )
+    p = argparse.ArgumentParser(prog=_PROG, description=_DESCRIPTION)
     p.add_argument(
         "--results",
         default="results",

@@ -39,6 +39,24 @@ from legs_jax.sweep.store import (
 # ====================================================================== arguments
 EXPERIMENTS = experiments.EXPERIMENTS
 
+_PROG = "python -m legs_jax.sweep"
+_DESCRIPTION = (
+    "Run the paper's experiments (SPEC §7) as resumable, chunked sweeps and "
+    "write tidy parquet results under OUT/<experiment>/: runs.parquet (one "
+    "row per run), curves.parquet (gap every 10 steps, mean and standard "
+    "error over the T x R runs of each object, method and hyperparameters), "
+    "checks.parquet (one row per Dirichlet check), manifest.json. Re-running "
+    "the same command resumes: finished chunks are kept and checked against "
+    "the configuration."
+)
+_EPILOG = (
+    "Experiments: "
+    + "; ".join(f"{n} ({experiments.get(n).DESCRIPTION})" for n in EXPERIMENTS)
+    + ". Multi-host: start the same command on every host with --coordinator "
+    "HOST:PORT --num-processes N --process-id I (I = 0..N-1) and a shared "
+    "--out; each process takes every N-th chunk and process 0 merges."
+)
+
 
 def _int_at_least(minimum: int) -> Callable[[str], int]:
     """An argparse type: an integer >= ``minimum``."""
@@ -62,25 +80,7 @@ _nonneg_int = _int_at_least(0)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="python -m legs_jax.sweep",
-        description=(
-            "Run the paper's experiments (SPEC §7) as resumable, chunked sweeps and "
-            "write tidy parquet results under OUT/<experiment>/: runs.parquet (one "
-            "row per run), curves.parquet (gap every 10 steps, mean and standard "
-            "error over the T x R runs of each object, method and hyperparameters), "
-            "checks.parquet (one row per Dirichlet check), manifest.json. Re-running "
-            "the same command resumes: finished chunks are kept and checked against "
-            "the configuration."
-        ),
-        epilog=(
-            "Experiments: main (Table I), case_study (Fig. 3), early_stopping "
-            "(Sec. 5.4, Fig. 4), prior_strength and confidence (appendix). "
-            "Multi-host: start the same command on every host with --coordinator "
-            "HOST:PORT --num-processes N --process-id I (I = 0..N-1) and a shared "
-            "--out; each process takes every N-th chunk and process 0 merges."
-        ),
-    )
+    p = argparse.ArgumentParser(prog=_PROG, description=_DESCRIPTION, epilog=_EPILOG)
     what = p.add_argument_group("what to run")
     what.add_argument("--all", action="store_true", help="run every experiment")
     what.add_argument(
