@@ -115,41 +115,32 @@ def _with_table(methods: Sequence[str]) -> tuple[str, ...]:
     return tuple(m for m in _all_methods() if m in methods or m in _table_methods())
 
 
+# Sizes of a run: (--quick, full).
+_SIZES = dict(
+    repeats=(2, 3),
+    min_seconds=(0.2, 1.0),
+    sampler_rows=(16, 64),
+    sampler_arms=(2000, 2000),
+    poses=(4, 8),
+    grasps=(2000, 2000),
+    trials=(2, 8),
+    horizon=(100, 1000),
+    rollouts_dense=(32, 128),
+    rollouts_sparse=(256, 2048),
+    reference_horizon=(100, 1000),
+    reference_seconds=(0.3, 3.0),
+)
+
+
 def settings(quick: bool, methods: Sequence[str] | None) -> Settings:
-    if quick:
-        return Settings(
-            quick=True,
-            repeats=2,
-            min_seconds=0.2,
-            sampler_rows=16,
-            sampler_arms=2000,
-            poses=4,
-            grasps=2000,
-            trials=2,
-            horizon=100,
-            rollouts_dense=32,
-            rollouts_sparse=256,
-            reference_horizon=100,
-            reference_seconds=0.3,
-            methods=_with_table(methods or _table_methods()),
-            numpy_all_cores=False,
-        )
+    """A quick run times the table's methods by default, a full run all of them;
+    the NumPy reference also runs on every core in a full run."""
+    default = _table_methods() if quick else _all_methods()
     return Settings(
-        quick=False,
-        repeats=3,
-        min_seconds=1.0,
-        sampler_rows=64,
-        sampler_arms=2000,
-        poses=8,
-        grasps=2000,
-        trials=8,
-        horizon=1000,
-        rollouts_dense=128,
-        rollouts_sparse=2048,
-        reference_horizon=1000,
-        reference_seconds=3.0,
-        methods=_with_table(methods or _all_methods()),
-        numpy_all_cores=True,
+        quick=quick,
+        **{k: v[0 if quick else 1] for k, v in _SIZES.items()},
+        methods=_with_table(methods or default),
+        numpy_all_cores=not quick,
     )
 
 

@@ -9,9 +9,6 @@ rows (0.56, 0.08).
 
 from __future__ import annotations
 
-import argparse
-from pathlib import Path
-
 import numpy as np
 
 from .errors import PrecomputeError
@@ -69,15 +66,9 @@ def main(argv=None) -> int:
     from . import prior as _prior
     from .analysis import PAPER
     from .build import problem_path, problems_dir
+    from .cli import subcommand_parser
 
-    ap = argparse.ArgumentParser(
-        prog="python -m precompute calibrate",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    ap.add_argument(
-        "--problems", type=Path, help="problem folder (default: data/problems)"
-    )
+    ap = subcommand_parser("calibrate", __doc__)
     ap.add_argument(
         "--noise",
         type=float,

@@ -344,14 +344,9 @@ def reliability_figure(counts: dict, priors: dict, path: Path) -> Path:
 
 # ------------------------------------------------------------------------- CLI
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
-        prog="python -m precompute report",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    ap.add_argument(
-        "--problems", type=Path, help="problem folder (default: data/problems)"
-    )
+    from .cli import subcommand_parser
+
+    ap = subcommand_parser("report", __doc__)
     ap.add_argument(
         "--out",
         type=Path,

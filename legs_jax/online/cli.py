@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from legs_jax._cli import compile_cache_arg, out_arg, quiet_arg
 from legs_jax._jax_cache import compile_cache
 from legs_jax.errors import ConfigError
 from legs_jax.online.errors import InputError, OrderError, StateError
@@ -62,13 +63,7 @@ def _session_args(p: argparse.ArgumentParser) -> None:
 
 
 def _cache_arg(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--compile-cache",
-        metavar="DIR",
-        help="JAX persistent compilation cache, so that a restarted session skips "
-        "compiling (default $JAX_COMPILATION_CACHE_DIR, else "
-        "$XDG_CACHE_HOME/legs_jax/jax or ~/.cache/legs_jax/jax; 'off' disables)",
-    )
+    compile_cache_arg(p, "a restarted session skips compiling")
 
 
 def _hparams(items) -> dict:
@@ -150,7 +145,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--eval-every", type=int, default=100, help="curve point every N steps (100)"
     )
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    quiet_arg(p)
     _session_args(p)
     _cache_arg(p)
 
@@ -170,13 +165,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--views", type=int, default=60, help="views per object (60)")
     p.add_argument("--seed", type=int, default=0, help="seed (0)")
-    p.add_argument(
-        "--out",
-        type=Path,
-        default=Path("results/online/recognition.md"),
-        help="markdown table (results/online/recognition.md)",
+    out_arg(
+        p,
+        "results/online/recognition.md",
+        "markdown table (results/online/recognition.md)",
     )
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    quiet_arg(p)
 
     p = sub.add_parser(
         "agreement",
@@ -205,13 +199,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=0,
         help="sessions with recognition and observed reservoirs (0)",
     )
-    p.add_argument(
-        "--out",
-        type=Path,
-        default=Path("results/online/agreement.md"),
-        help="markdown table; the figure goes next to it (.png)",
+    out_arg(
+        p,
+        "results/online/agreement.md",
+        "markdown table; the figure goes next to it (.png)",
     )
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    quiet_arg(p)
     _cache_arg(p)
 
     p = sub.add_parser(

@@ -13,6 +13,7 @@ from typing import Any
 
 import experiments
 from legs_jax import results as res
+from legs_jax._cli import compile_cache_arg, quiet_arg
 from legs_jax._jax_cache import compile_cache
 from legs_jax.sweep.execute import finish_experiment, run_experiment
 from legs_jax.sweep.experiments import (
@@ -136,12 +137,12 @@ def build_parser() -> argparse.ArgumentParser:
         "default --out results/_scratch/smoke",
     )
     out = p.add_argument_group("output and devices")
-    out.add_argument("--out", metavar="DIR", help="output folder (default results)")
     out.add_argument(
         "--overwrite",
         action="store_true",
         help="delete existing results of the selected experiments and start over",
     )
+    out.add_argument("--out", metavar="DIR", help="output folder (default results)")
     out.add_argument(
         "--no-reuse",
         action="store_true",
@@ -162,14 +163,8 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="print the plan (chunks, rollouts) and exit",
     )
-    out.add_argument(
-        "--compile-cache",
-        metavar="DIR",
-        help="JAX persistent compilation cache, so that resumed and repeated sweeps "
-        "skip compiling (default $JAX_COMPILATION_CACHE_DIR, else "
-        "$XDG_CACHE_HOME/legs_jax/jax or ~/.cache/legs_jax/jax; 'off' disables)",
-    )
-    out.add_argument("--quiet", action="store_true", help="no progress bar")
+    compile_cache_arg(out, "resumed and repeated sweeps skip compiling")
+    quiet_arg(out)
     dist = p.add_argument_group("multi-host (jax.distributed)")
     dist.add_argument("--coordinator", metavar="HOST:PORT", help="coordinator address")
     dist.add_argument("--num-processes", type=_positive_int, metavar="N")
