@@ -211,8 +211,8 @@ def test_prior_only_gaps_match_a_hand_computation():
     g = prior_only_gaps(landing, rob, prior, valid, k=2)
     # pose 0: p* 0.9, greedy picks p=0.1; top-2 by q = {0, 2} -> best p 0.5
     # pose 1: p* 0.2, greedy picks p=0.0; top-2 = {1, 0} -> 0.2
-    assert g["dexnet"][0] == pytest.approx(0.75 * 0.8 + 0.25 * 0.2)
-    assert g["k100_ub"][0] == pytest.approx(0.75 * 0.4 + 0.25 * 0.0)
+    assert g["greedy"][0] == pytest.approx(0.75 * 0.8 + 0.25 * 0.2)
+    assert g["top"][0] == pytest.approx(0.75 * 0.4 + 0.25 * 0.0)
     assert top_by_prior(prior, valid, 3)[0, 1].tolist() == [1, 0, -1]
 
 

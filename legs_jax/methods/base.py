@@ -226,6 +226,10 @@ class Method:
     the benchmark's table (``legs_jax.bench``, timed against its NumPy twin);
     ``bench_proxy`` names a method of that table with the same per-step work, whose
     measured rate stands in for this one's when the benchmark projects a sweep.
+    ``prior_only`` marks a row whose gap the prior and the reservoirs alone decide,
+    by its rule: ``"greedy"`` (the grasp of highest q) or ``"top"`` (the best true
+    grasp among the top-k by q); :mod:`precompute.analysis` computes those gaps
+    without running it.
     """
 
     name: str
@@ -256,6 +260,7 @@ class Method:
     reference: Callable[..., Any] | None = None
     bench: bool = False
     bench_proxy: str = ""
+    prior_only: str = ""
 
     def defaults(self) -> dict[str, float | int]:
         """Every hyperparameter with its default."""

@@ -13,6 +13,7 @@ METHOD = Method(
     name="dexnet",
     description="Dex-Net: argmax prior, no exploration (constant gap)",
     **_fixed.CONSTANT_ROW,
+    prior_only="greedy",
     init=lambda ctx, cfg: _fixed.init(ctx, cfg, which="dexnet"),
     candidates=_fixed.candidates_dexnet,
     label="Dex-Net (synthetic prior)",

@@ -11,6 +11,7 @@ METHOD = Method(
     name="k100_ub",
     description="K100 upper bound: best true grasp of the top-100 by prior (oracle)",
     **_fixed.CONSTANT_ROW,
+    prior_only="top",
     init=lambda ctx, cfg: _fixed.init(ctx, cfg, which="k100_ub"),
     candidates=_fixed.candidates_top,
     label="K_s=100 upper bound",
