@@ -517,6 +517,7 @@ def _before_after_sentences(t1b, t1) -> list[str]:
 
 def _discussion(ctx: Mapping) -> list[str]:
     main = ctx.get("main")
+    t1 = main["table1"] if main else None
     L = ["## Discussion", ""]
     L += [
         "Each difference below is tied to a deviation listed in the README "
@@ -528,7 +529,6 @@ def _discussion(ctx: Mapping) -> list[str]:
     ]
     L += ["### Synthetic prior", ""]
     if main:
-        t1 = main["table1"]
         rows = []
         for s in an.order_sets(t1["set"]):
             for m in ("dexnet", "k100_ub"):
@@ -602,7 +602,6 @@ def _discussion(ctx: Mapping) -> list[str]:
             ]
     L += ["### Objects: 13 vs 14 Dex-Net, 49 vs 39 EGAD", ""]
     if main:
-        t1 = main["table1"]
         parts = []
         for s in an.order_sets(t1["set"]):
             if s in PAPER_OBJECTS:
@@ -631,7 +630,6 @@ def _discussion(ctx: Mapping) -> list[str]:
             ]
     L += ["### Physics", ""]
     if main:
-        t1 = main["table1"]
         d, e = (
             _row_mean(t1, "dexnet_adv", "dexnet"),
             _row_mean(t1, "egad_eval", "dexnet"),
