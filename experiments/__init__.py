@@ -7,8 +7,10 @@ hyperparameters; a sequence value is a grid that runs as one batch axis),
 ``SMOKE_OBJECTS`` and, where they differ from :data:`DEFAULTS`, ``TRIALS``,
 ``ROLLOUTS``, ``HORIZON``, ``RECORD_EVERY``, ``CHECK_EVERY``, ``CHECK_METHODS``
 (methods whose Dirichlet checks go to checks.parquet) and ``ACTIVE_SET_METHODS``
-(methods whose active sets go to active_set.parquet, trial 0, rollout 0); any other
-uppercase constant stays available on the declaration that :func:`get` returns.
+(methods whose active sets go to active_set.parquet, trial 0, rollout 0), and
+``PRIOR`` where the problems carry another prior than the default (``precompute
+--prior``); any other uppercase constant stays available on the declaration that
+:func:`get` returns.
 ``python -m legs_jax.sweep`` runs them.
 
 ``analysis.py`` holds what the experiment makes from its results: ``STEPS``

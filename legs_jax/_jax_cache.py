@@ -27,4 +27,8 @@ def compile_cache(option: str | None) -> str | None:
     import jax
 
     jax.config.update("jax_compilation_cache_dir", path)
+    # Every program, however quickly it compiles (JAX's default keeps only those
+    # of a second or more): a repeated run should compile nothing.
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     return path

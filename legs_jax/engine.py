@@ -28,7 +28,8 @@ from __future__ import annotations
 import functools
 import math
 import numbers
-from collections import Counter
+import time
+from collections import Counter, OrderedDict
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, NamedTuple
 
@@ -48,6 +49,7 @@ __all__ = [
     "NUM_DIRICHLET_SAMPLES",
     "EnvState",
     "RunResult",
+    "compile_seconds",
     "compiled",
     "dirichlet_checks",
     "dirichlet_quantiles",
@@ -586,6 +588,7 @@ def compiled(
     grid: bool = False,
     devices: tuple | None = None,
     dirichlet: bool = True,
+    raw_keys: bool = False,
 ) -> Callable:
     """The jitted :func:`simulate` for one static configuration (cached).
 
@@ -593,7 +596,9 @@ def compiled(
     Returns ``f(tables, ot, rollout_keys, hp) -> dict``. With ``grid=True`` the
     function is ``jit(vmap(simulate))`` over a leading axis G of ``rollout_keys``
     [G, B] and of every ``hp`` leaf [G, B]. With several ``devices`` the batch axis
-    is sharded over them (``shard_map``); the tables are replicated.
+    is sharded over them (``shard_map``); the tables are replicated. With
+    ``raw_keys`` the keys come as their raw uint32 words [..., 2]
+    (:func:`legs_jax.keys.rollout_key_data`).
     """
     fn = functools.partial(
         simulate,
@@ -612,13 +617,57 @@ def compiled(
         fn = lambda tables, ot, ks, hp: jax.vmap(  # noqa: E731
             lambda k, h: plain(tables, ot, k, h)
         )(ks, hp)
+    if raw_keys:
+        fn = _wrapping_keys(fn, 2)
     return _jit_rows(fn, devices, (None, "b", "b", "b"), grid)
 
 
 @functools.lru_cache(maxsize=8)
-def compiled_checks(devices: tuple | None = None) -> Callable:
+def compiled_checks(devices: tuple | None = None, raw_keys: bool = False) -> Callable:
     """The jitted :func:`dirichlet_checks` (one program for every method)."""
-    return _jit_rows(dirichlet_checks, devices, ("b", "b"), False)
+    fn = _wrapping_keys(dirichlet_checks, 0) if raw_keys else dirichlet_checks
+    return _jit_rows(fn, devices, ("b", "b"), False)
+
+
+def _wrapping_keys(fn: Callable, at: int) -> Callable:
+    """``fn`` taking raw key words at argument ``at`` instead of typed keys."""
+
+    def wrapped(*args):
+        args = list(args)
+        args[at] = jax.random.wrap_key_data(args[at])
+        return fn(*args)
+
+    return wrapped
+
+
+# Compiled executables of :func:`run` (ahead of time, so that compilation, or its
+# load from the persistent cache, is timed apart from running).
+_EXECUTABLES: OrderedDict = OrderedDict()
+_MAX_EXECUTABLES = 64
+_COMPILE_SECONDS = [0.0]
+
+
+def compile_seconds() -> float:
+    """Seconds this process has spent tracing, lowering and compiling (or loading
+    from the persistent compilation cache) the programs of :func:`run`."""
+    return _COMPILE_SECONDS[0]
+
+
+def _call(fn: Callable, *args):
+    """``fn(*args)`` through an executable compiled once per argument shape."""
+    leaves, tree = jax.tree_util.tree_flatten(args)
+    key = (fn, tree, tuple((x.shape, x.dtype, x.sharding) for x in leaves))
+    exe = _EXECUTABLES.get(key)
+    if exe is None:
+        t0 = time.perf_counter()
+        exe = fn.lower(*args).compile()
+        _COMPILE_SECONDS[0] += time.perf_counter() - t0
+        _EXECUTABLES[key] = exe
+        while len(_EXECUTABLES) > _MAX_EXECUTABLES:
+            _EXECUTABLES.popitem(last=False)
+    else:
+        _EXECUTABLES.move_to_end(key)
+    return exe(*args)
 
 
 def _jit_rows(fn: Callable, devices, in_axes, grid: bool) -> Callable:
@@ -661,6 +710,7 @@ def run(
     devices: Sequence[jax.Device] | None = None,
     batch_size: int | None = None,
     progress: bool | Callable[[int], Any] | None = None,
+    shape_of: tuple[int, int] | None = None,
 ) -> RunResult:
     """Run ``method`` on every object and trial of ``batch``, R rollouts each.
 
@@ -692,6 +742,10 @@ def run(
       progress: True for a progress bar over rollouts, False for none, None for a
         bar when the job is large, or a callable given the number of rollouts done
         after each mini-batch.
+      shape_of: (object-trial pairs, rollouts) of a larger run whose program
+        shapes this run takes (its tables and mini-batches padded to them), so
+        that the runs of a sweep share compiled programs; results do not
+        depend on it.
     Returns:
       a :class:`RunResult`.
     Raises:
@@ -748,14 +802,17 @@ def run(
     # ---------------------------------------------------------------- layout
     T = len(trials)
     N = O * T
-    n_pad = 1 << max(0, (N - 1).bit_length())
-    tables_np = make_tables(batch, trials, pad_to=n_pad)
     rows = G * O * T * R
+    like_pairs, like_rows = shape_of if shape_of is not None else (N, rows)
+    n_pad = 1 << max(0, (max(N, like_pairs) - 1).bit_length())
+    tables_np = make_tables(batch, trials, pad_to=n_pad)
     g_i, o_i, t_i, r_i = (a.reshape(-1) for a in np.indices((G, O, T, R)))
     ot_rows = (o_i * T + t_i).astype(np.int32)
     obj_rows = np.asarray(obj, np.int64)[o_i]
     trial_rows = np.asarray(trials, np.int64)[t_i]
-    key_rows = keys_mod.rollout_keys(seed, obj_rows, trial_rows, rollout_offset + r_i)
+    key_rows = keys_mod.rollout_key_data(
+        seed, obj_rows, trial_rows, rollout_offset + r_i
+    )
 
     curve_steps = np.unique(np.append(np.arange(0, H + 1, record_every), H))
     check_steps = (
@@ -805,33 +862,36 @@ def run(
         sel = np.flatnonzero(np.isin(g_i, gs))
         largest = batch_size or _default_batch_size(m, platform, cfg)
         quantum = 1 if batch_size or largest <= 64 else 16
-        per_dev = _batch_rows(-(-sel.size // n_dev), largest, quantum)
+        like = max(sel.size, like_rows * len(gs) // G)
+        per_dev = _batch_rows(-(-like // n_dev), largest, quantum)
         Bc = per_dev * n_dev
         fn = compiled(
             m, cfg, H, record_every, check_every,
             bool(stop_variant_attempted), bool(record_active_set),
-            devices=devices, dirichlet=False,
+            devices=devices, dirichlet=False, raw_keys=True,
         )  # fmt: skip
-        checks_fn = compiled_checks(devices) if check_every else None
+        checks_fn = compiled_checks(devices, True) if check_every else None
         pending = []
         for start in range(0, sel.size, Bc):
             idx = sel[start : start + Bc]
             pad = Bc - idx.size
             full = np.concatenate([idx, np.full(pad, idx[0])]) if pad else idx
+            # NumPy until the device: an eager jax.numpy operation would compile
+            # a program of its own for each new shape.
             hp_b = m.traced_hparams(
                 **{
-                    name: jnp.asarray(hp[name][g_i[full]], jnp.float32)
+                    name: np.asarray(hp[name][g_i[full]], np.float32)
                     for name in m.traced
                 }
             )
-            args = (jnp.asarray(ot_rows[full]), key_rows[full], hp_b)
+            args = (ot_rows[full], key_rows[full], hp_b)
             if n_dev > 1:
                 args = jax.device_put(args, row_sharding)
             else:
                 args = jax.device_put(args, devices[0])
-            out = fn(put_tables, *args)
+            out = _call(fn, put_tables, *args)
             if checks_fn is not None:
-                out = checks_fn(args[1], out)
+                out = _call(checks_fn, args[1], out)
             pending.append((idx, out))
             if len(pending) > 1:
                 done += _collect(pending.pop(0), store, gap_cols, curve_steps, H)

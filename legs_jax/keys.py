@@ -36,6 +36,7 @@ __all__ = [
     "CHECK_STREAM",
     "rollout_key",
     "rollout_keys",
+    "rollout_key_data",
     "env_key",
     "method_key",
     "check_key",
@@ -63,6 +64,30 @@ def _rollout_keys(seed, object_ids, trials, rollouts):
         return jax.random.fold_in(jax.random.fold_in(k, t), r)
 
     return jax.vmap(one)(object_ids, trials, rollouts)
+
+
+@jax.jit
+def _rollout_key_data(seed, object_ids, trials, rollouts):
+    return jax.random.key_data(_rollout_keys(seed, object_ids, trials, rollouts))
+
+
+def rollout_key_data(
+    seed: int, object_ids: np.ndarray, trials: np.ndarray, rollouts: np.ndarray
+) -> np.ndarray:
+    """The raw uint32 words [B, 2] of :func:`rollout_keys` as a NumPy array
+    (``jax.random.wrap_key_data`` gives the keys back).
+
+    The rows are computed padded to a power of two, so that the program behind
+    it compiles once per size class (and then comes from the compilation cache)."""
+    ids = [
+        np.asarray(x, np.int64).reshape(-1).astype(np.uint32)
+        for x in (object_ids, trials, rollouts)
+    ]
+    n = ids[0].size
+    size = 1 << max(0, (n - 1).bit_length())
+    padded = [np.concatenate([x, np.zeros(size - n, np.uint32)]) for x in ids]
+    out = _rollout_key_data(np.uint32(seed), *padded)
+    return np.asarray(out)[:n]
 
 
 def rollout_keys(

@@ -267,6 +267,17 @@ def save(problem: Problem, path: str | os.PathLike) -> Path:
     return atomic_write(path, write)
 
 
+def prior_kind(meta: dict[str, Any]) -> str:
+    """Which prior q a problem file carries, from its meta: "learned" (the
+    network of ``precompute.learned``), "synthetic" (the stand-in made from p;
+    files built before the learned prior record no kind) or "unknown" (a file
+    made elsewhere)."""
+    kind = meta.get("prior_kind")
+    if kind:
+        return str(kind)
+    return "synthetic" if isinstance(meta.get("prior"), dict) else "unknown"
+
+
 def peek(path: str | os.PathLike) -> dict[str, Any]:
     """The header of a problem file without loading its arrays: ``name``,
     ``meta`` and ``shapes`` (field -> array shape, for ``landing`` and

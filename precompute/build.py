@@ -445,15 +445,19 @@ def _display_path(path: Path) -> str:
 # ----------------------------------------------------------------------- the cache
 
 
-def problems_dir(data_dir: Path | None = None) -> Path:
+def problems_dir(data_dir: Path | None = None, prior: str | None = None) -> Path:
     """Where problem files are written: ``<data>/problems`` when writable, else the
-    user cache (``$XDG_CACHE_HOME/legs_jax/problems``)."""
+    user cache (``$XDG_CACHE_HOME/legs_jax/problems``). Files with a prior other
+    than the default one (:func:`.learned.default_prior`) live apart, in its
+    ``prior-<kind>`` subfolder, so that both kinds can be kept side by side."""
     base = Path(data_dir) if data_dir is not None else _catalog.data_dir()
     out = base / "problems"
-    if _writable(out):
-        return out
-    cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
-    return cache / "legs_jax" / "problems"
+    if not _writable(out):
+        cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
+        out = cache / "legs_jax" / "problems"
+    if prior is not None and prior != _learned.default_prior():
+        out = out / f"prior-{prior}"
+    return out
 
 
 def _writable(folder: Path) -> bool:
@@ -504,8 +508,8 @@ def out_of_date(
     """The catalogue objects among ``names`` (object or set names) whose problem
     file is missing or out of date: what :func:`ensure` would build."""
     root = Path(data_dir) if data_dir is not None else None
-    out = problems_dir(root)
     params = (params or BuildParams()).check()
+    out = problems_dir(root, params.prior)
     return [
         i
         for i in _catalog.resolve(list(names), root=root)
@@ -523,12 +527,13 @@ def ensure(
 ) -> dict[str, Path]:
     """The problem file of each named object (object or set names), building the
     missing or out-of-date ones. Files live in ``<data>/problems/<set>/<name>.npz``
-    (or the user cache when the data folder is read-only)."""
+    (or the user cache when the data folder is read-only; a prior other than the
+    default in a subfolder, :func:`problems_dir`)."""
     from .runner import build_many
 
     root = Path(data_dir) if data_dir is not None else None
-    out = problems_dir(root)
     params = (params or BuildParams()).check()
+    out = problems_dir(root, params.prior)
     paths = {
         i.name: problem_path(i, out) for i in _catalog.resolve(list(names), root=root)
     }

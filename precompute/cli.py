@@ -110,7 +110,8 @@ def _build_parser() -> argparse.ArgumentParser:
         choices=["learned", "synthetic"],
         default=None,
         help="prior q of the problems (default: learned when its weights are "
-        "shipped, else synthetic)",
+        "shipped, else synthetic); files with the other prior go to the "
+        "prior-<kind> subfolder of the problems folder",
     )
     p.add_argument(
         "--jobs", type=int, default=None, help="worker processes (default: CPU cores)"
@@ -159,7 +160,7 @@ def _build(argv) -> int:
         tasks = [Task(a.mesh, a.units, name, "custom", dest, a.fit)]
         skipped = []
     else:
-        out = a.out if a.out is not None else problems_dir()
+        out = a.out if a.out is not None else problems_dir(prior=prior)
         if a.units is not None:
             raise PrecomputeError("--units applies to --mesh only")
         if a.fit != "none":

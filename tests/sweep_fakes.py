@@ -61,6 +61,7 @@ def fake_run(
     record_active_set=False,
     devices=None,
     progress=None,
+    shape_of=None,
     calls=None,
 ):
     grid = _grid(hparams)

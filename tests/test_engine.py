@@ -168,6 +168,36 @@ _DEVICE_SCRIPT = textwrap.dedent(
 )
 
 
+@pytest.mark.parametrize("method", ["legs", "borges_2000", "tql"])
+def test_shape_buckets_are_bit_identical(method):
+    """A sweep pads a chunk's poses to its bucket and its tables and mini-batches
+    to the largest chunk of its group (``shape_of``): every result is the same
+    bit for bit as the unpadded run, Dirichlet bounds included."""
+    probs = [
+        make_problem(seed=s, num_poses=p, num_grasps=150, num_trials=2, name=f"b{s}")
+        for s, p in ((1, 3), (2, 5))
+    ]
+    kw = dict(
+        object_ids=[3, 4],
+        num_rollouts=3,
+        horizon=200,
+        check_every=50,
+        hparams={"k": 20} if method == "legs" else None,
+        progress=False,
+    )
+    plain = engine.run(stack(probs), method, **kw)
+    padded = engine.run(stack(probs, num_poses=8), method, shape_of=(16, 40), **kw)
+    for f in engine.RunResult._fields:
+        x = getattr(plain, f)
+        if x is None:
+            continue
+        np.testing.assert_array_equal(x, getattr(padded, f), err_msg=f)
+    # the padded run really ran on padded tables: 16 (object, trial) rows of 8
+    # poses (the plain one on 4 rows of 5)
+    shapes = {a[0] for k in engine._EXECUTABLES for a in k[2]}
+    assert (16, 8, 150) in shapes and (4, 5, 150) in shapes
+
+
 def test_results_do_not_depend_on_device_count():
     """In a subprocess with 4 host devices: 8 rollouts on 1 device and sharded over
     4 devices (2 each) are bit-identical."""

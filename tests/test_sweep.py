@@ -81,7 +81,8 @@ def test_smoke_runs_every_experiment(tmp_path):
     p = _sweep(["--smoke", "--out", str(tmp_path)], _env())
     wall = time.perf_counter() - t0
     assert p.returncode == 0, p.stderr[-3000:]
-    names = ["main", "case_study", "early_stopping", "prior_strength", "confidence"]
+    names = list(experiments.EXPERIMENTS)
+    assert "prior_synthetic" in names and len(names) == 6
     assert sorted(d.name for d in tmp_path.iterdir() if d.name[0] != "_") == sorted(
         names
     )

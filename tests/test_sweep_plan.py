@@ -36,7 +36,8 @@ def _keep_xla_flags(monkeypatch):
 def fake_engine(monkeypatch):
     calls = []
     eng = types.SimpleNamespace(
-        run=functools.partial(sweep_fakes.fake_run, calls=calls)
+        run=functools.partial(sweep_fakes.fake_run, calls=calls),
+        compile_seconds=lambda: 0.0,
     )
     monkeypatch.setattr(sweep.execute, "_engine", lambda: eng)
     return calls
@@ -600,7 +601,7 @@ def test_dry_run_does_not_build_missing_problems(tmp_path, monkeypatch, capsys):
 
     built = []
     monkeypatch.setattr(
-        sweep.experiments, "_missing_problems", lambda names: list(names)
+        sweep.experiments, "_missing_problems", lambda names, params=None: list(names)
     )
     monkeypatch.setattr(precompute, "ensure", lambda *a, **k: built.append(a))
     args = ["--experiment", "prior_strength", "--dry-run", "--out", str(tmp_path)]

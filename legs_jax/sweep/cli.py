@@ -315,6 +315,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         a.declared = {m for n in EXPERIMENTS for m, _, _ in experiments.get(n).ARMS}
         plans = []
         for name in names:
+            own_prior = getattr(experiments.get(name), "PRIOR", None)
+            if a.problems and own_prior:
+                _say(
+                    f"{name}: runs the catalogue problems with the {own_prior} prior; "
+                    "skipped with --problems",
+                    a.quiet,
+                )
+                continue
             try:
                 plan = _experiment_plan(name, a, catalog, out)
             except _ProblemsMissing as e:

@@ -94,6 +94,7 @@ def _run_chunk(
         record_active_set=chunk.record_active_set,
         devices=devices,
         progress=progress,
+        shape_of=chunk.shape_of,
     )
     ctx = res.ChunkContext(
         experiment=plan.name,
@@ -249,6 +250,7 @@ def run_experiment(
     session["git"] = git
     t_session = time.perf_counter()
     computed = reused = 0
+    compile_total = 0.0
     bar = None
 
     def meta_of(c: Chunk, curve_steps, wall: float, **extra) -> dict[str, Any]:
@@ -318,11 +320,17 @@ def run_experiment(
                 continue
             bar.begin_chunk(c.work)
             t0 = time.perf_counter()
+            c0 = _engine().compile_seconds()
             tables, curve_steps = _run_chunk(
                 plan, c, cache, devices, _engine_progress(bar, c.rollouts)
             )
-            meta = meta_of(c, curve_steps, time.perf_counter() - t0)
+            wall = time.perf_counter() - t0
+            # compile_s: tracing, lowering and compiling (or loading from the
+            # persistent cache) the chunk's programs; run_s: the rest.
+            comp = _engine().compile_seconds() - c0
+            meta = meta_of(c, curve_steps, wall, compile_s=comp, run_s=wall - comp)
             res.write_chunk(chunks_dir, c.id, tables, meta)
+            compile_total += comp
             computed += 1
             bar.end_chunk(c.rollouts)
         _check_interrupt()
@@ -334,6 +342,7 @@ def run_experiment(
         session["wall_s"] = time.perf_counter() - t_session
         session["chunks_computed"] = computed
         session["chunks_reused"] = reused
+        session["compile_s"] = compile_total
         if dist.leader:
             _write_manifest(plan, d, "interrupted", session)
         _say(
@@ -347,6 +356,7 @@ def run_experiment(
     session["wall_s"] = time.perf_counter() - t_session
     session["chunks_computed"] = computed
     session["chunks_reused"] = reused
+    session["compile_s"] = compile_total
     return session
 
 

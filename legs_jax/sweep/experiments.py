@@ -95,11 +95,11 @@ def _entry(
     from legs_jax import problem as problem_mod
 
     try:
-        shapes = problem_mod.peek(path)["shapes"]
+        head = problem_mod.peek(path)
     except Exception:  # noqa: BLE001 - refuse any unreadable file the same way
         problem_mod.load(path)  # raises ProblemFileError naming the field
         raise
-    T, P, K = shapes["robustness"]
+    T, P, K = head["shapes"]["robustness"]
     return ObjectEntry(
         name=name,
         set=set_,
@@ -109,6 +109,7 @@ def _entry(
         num_poses=int(P),
         num_grasps=int(K),
         num_trials=int(T),
+        prior=problem_mod.prior_kind(head["meta"]),
     )
 
 
@@ -200,7 +201,9 @@ def _experiment_plan(
                     "pass problem files with --problems"
                 )
             resolved = _resolve_names(requested or list(mod.OBJECTS), catalog)
-            objects = _catalog_problems(resolved, dry_run=bool(a.dry_run))
+            objects = _catalog_problems(
+                resolved, dry_run=bool(a.dry_run), prior=getattr(mod, "PRIOR", None)
+            )
     plan = ExperimentPlan(
         name=name,
         description=mod.DESCRIPTION,
@@ -269,16 +272,21 @@ class _ProblemsMissing(Exception):
         self.names = list(names)
 
 
-def _missing_problems(names: Sequence[str]) -> list[str]:
+def _missing_problems(names: Sequence[str], params=None) -> list[str]:
     """Catalogue objects whose problem file is missing or out of date."""
     import precompute
 
-    return [i.name for i in precompute.out_of_date(list(names))]
+    return [i.name for i in precompute.out_of_date(list(names), params=params)]
 
 
 def _catalog_problems(
-    resolved: Sequence[tuple[str, str, int]], *, dry_run: bool = False
+    resolved: Sequence[tuple[str, str, int]],
+    *,
+    dry_run: bool = False,
+    prior: str | None = None,
 ) -> list[ObjectEntry]:
+    """The problem files of catalogue objects, built when missing; ``prior``: the
+    prior they carry (an experiment's ``PRIOR``; None: the default one)."""
     try:
         import precompute
     except ImportError:  # pragma: no cover - the package ships with legs_jax
@@ -288,9 +296,15 @@ def _catalog_problems(
             "problem building (precompute.ensure) is not available; "
             "pass problem files with --problems"
         )
+    params = None
+    if prior is not None:
+        try:
+            params = precompute.BuildParams(prior=prior).check()
+        except _precompute_errors() as e:
+            raise SweepError(str(e)) from None
     if dry_run:
-        missing = _missing_problems([n for n, _, _ in resolved])
+        missing = _missing_problems([n for n, _, _ in resolved], params)
         if missing:
             raise _ProblemsMissing(missing)
-    paths = precompute.ensure([n for n, _, _ in resolved])
+    paths = precompute.ensure([n for n, _, _ in resolved], params=params)
     return [_entry(n, s, oid, paths[n]) for n, s, oid in resolved]

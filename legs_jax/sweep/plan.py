@@ -51,6 +51,7 @@ class ObjectEntry:
     num_poses: int  # P slots of the problem file
     num_grasps: int  # K slots
     num_trials: int  # T in the file
+    prior: str = "unknown"  # the prior q the file carries (problem.prior_kind)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -89,6 +90,10 @@ class Chunk:
     rollouts: int  # G x O x T x R of the chunk
     work: float  # estimated cost (progress bar units)
     hash: str
+    # (object-trial pairs, rollouts) of the largest chunk of its arm and padded
+    # shape: the engine pads this chunk's program shapes to it, so that they
+    # share one compiled program (results do not depend on it).
+    shape_of: tuple[int, int] = (0, 0)
     # What each of its rollouts depends on besides (object, trial, rollout): two
     # chunks with equal signatures compute identical rows for the pairs they share
     # (see :func:`_reuse_chunk`).
@@ -191,10 +196,23 @@ def make_arm(method: str, variant: str, hparams: Mapping[str, Any]) -> Arm:
 
 
 # ------------------------------------------------------------------ chunk planning
+# Pose-count buckets: every problem is padded to the first that holds its poses
+# (a multiple of the last beyond it), so that a method compiles one program per
+# bucket for the whole sweep. Padded poses are masked and their Dirichlet draws
+# are keyed by pose, so padding changes no result; it costs the checks' draws of
+# the padded poses. Chosen from the catalogue (BENCHMARKS.md, "Fixed costs"):
+# with the powers of two the sweep compiled 58 programs, with these 39, for 1 %
+# more estimated work.
+POSE_BUCKETS = (8, 16, 32)
+
+
 def _pose_bucket(p: int) -> int:
-    """Pad the pose axis to the next power of two (fewer distinct shapes, fewer
-    compilations); padding is masked and never changes results."""
-    return 1 << max(0, (p - 1).bit_length())
+    """The padded pose count of a problem with ``p`` poses."""
+    for b in POSE_BUCKETS:
+        if p <= b:
+            return b
+    last = POSE_BUCKETS[-1]
+    return -(-p // last) * last
 
 
 def _rollout_work(arm: Arm, P: int, K: int, horizon: int, check_every: int) -> float:
@@ -320,6 +338,16 @@ def plan_chunks(
                         signature=res.config_hash(signature),
                     )
                 )
+    largest: dict[tuple[int, int, int], tuple[int, int]] = {}
+    for c in chunks:
+        k = (c.arm, c.num_poses, c.num_grasps)
+        pairs = len(c.objects) * len(c.trials)
+        old = largest.get(k, (0, 0))
+        largest[k] = (max(old[0], pairs), max(old[1], c.rollouts))
+    chunks = [
+        dataclasses.replace(c, shape_of=largest[(c.arm, c.num_poses, c.num_grasps)])
+        for c in chunks
+    ]
     ids = [c.id for c in chunks]
     if len(set(ids)) != len(ids):  # pragma: no cover - names are unique per plan
         raise SweepError("internal error: duplicate chunk ids")

@@ -312,6 +312,8 @@ def _write_manifest(
                 k: m.get(k)
                 for k in (
                     "wall_s",
+                    "compile_s",
+                    "run_s",
                     "reused_from",
                     "rollouts",
                     "device",
@@ -337,9 +339,14 @@ def _write_manifest(
         "config": plan.config(),
         "config_hash": res.config_hash(plan.config()),
         "problem_files": {
-            o.name: {"path": _portable_path(o.path), "sha256": o.sha256}
+            o.name: {
+                "path": _portable_path(o.path),
+                "sha256": o.sha256,
+                "prior": o.prior,
+            }
             for o in plan.objects
         },
+        "priors": sorted({o.prior for o in plan.objects}),
         "seeds": {
             "seed": plan.seed,
             "rollout_key": "fold_in(fold_in(fold_in(key(seed), object_id), trial), "
@@ -355,6 +362,9 @@ def _write_manifest(
         "chunks_done": len(chunks),
         "chunks": chunks,
         "wall_s_chunks": float(sum(c["wall_s"] or 0.0 for c in chunks.values())),
+        "compile_s_chunks": float(
+            sum(c.get("compile_s") or 0.0 for c in chunks.values())
+        ),
         "sessions": sessions,
         "curves": "aggregated: mean and standard error over the T x R runs of each "
         "object, method, variant and hyperparameters; per-run curves are in the "
