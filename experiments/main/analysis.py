@@ -602,14 +602,13 @@ def _discussion(ctx: Mapping) -> list[str]:
             ]
     L += ["### Objects: 13 vs 14 Dex-Net, 49 vs 39 EGAD", ""]
     if main:
-        parts = []
-        for s in an.order_sets(t1["set"]):
-            if s in PAPER_OBJECTS:
-                n = int(t1.loc[t1["set"] == s, "n_objects"].max())
-                parts.append(
-                    f"{an.SET_LABELS[s]}: {n} objects here, {PAPER_OBJECTS[s]} in "
-                    "the paper"
-                )
+        n_here = t1.groupby("set")["n_objects"].max()
+        parts = [
+            f"{an.SET_LABELS[s]}: {int(n_here[s])} objects here, "
+            f"{PAPER_OBJECTS[s]} in the paper"
+            for s in an.order_sets(t1["set"])
+            if s in PAPER_OBJECTS
+        ]
         if parts:
             L += [
                 "; ".join(parts) + ". Set means and win counts are over different "
