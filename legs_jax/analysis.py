@@ -3,7 +3,7 @@
 Every function here is a pure function of the tidy tables a sweep writes
 (``runs``, ``curves``, ``checks``, ``active_set``, ``grasps``; see
 ``legs_jax.results``): no I/O, no plotting, no randomness. The paper's own numbers
-are kept beside them (``PAPER_*``) so that tables and the report can show both.
+are kept with the experiment they belong to (``experiments/<name>/analysis.py``).
 
 Aggregation (SPEC §5): per object, the mean over its T x R runs; per data set, the
 mean and standard error across objects. Standard errors are sample standard
@@ -17,7 +17,7 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 import pandas as pd
 
-import sweeps
+import experiments
 
 __all__ = [
     "ARM_LABELS",
@@ -25,11 +25,6 @@ __all__ = [
     "COMPETITORS",
     "HPARAM_COLUMNS",
     "METHODS",
-    "PAPER_EARLY_STOPPING",
-    "PAPER_OBJECTS",
-    "PAPER_SWEEPS",
-    "PAPER_TABLE1",
-    "PAPER_WINS",
     "PROPOSED",
     "SET_LABELS",
     "WIN_TOLERANCE",
@@ -54,7 +49,7 @@ __all__ = [
     "winners",
 ]
 
-_MAIN = sweeps.get("main")
+_MAIN = experiments.get("main")
 
 
 def _table_order() -> tuple[str, ...]:
@@ -91,33 +86,8 @@ HPARAM_COLUMNS = ("s", "prior_offset", "delta", "gamma", "k", "n", "epsilon", "e
 
 ARM_LABELS = _arm_labels()
 SET_LABELS = {"dexnet_adv": "Dex-Net Adversarial", "egad_eval": "EGAD! evaluation"}
-# Object counts of the paper's data sets.
-PAPER_OBJECTS = {"dexnet_adv": 14, "egad_eval": 39}
 
-PAPER_TABLE1 = _MAIN.PAPER_TABLE1
-PAPER_WINS = _MAIN.PAPER_WINS
 PROPOSED = _MAIN.PROPOSED  # the method the paper proposes (LEGS)
-# Section 5.4: accuracy and tightness of the stopping bound on the Dex-Net set.
-PAPER_EARLY_STOPPING = {"accuracy": 0.958, "tightness": 0.0297}
-# Appendix tables, LEGS on the bar clamp: value -> (mean, SE).
-PAPER_SWEEPS = {
-    "s": {
-        0.0: (0.285, 0.055),
-        1.0: (0.125, 0.036),
-        2.0: (0.128, 0.038),
-        3.0: (0.171, 0.041),
-        4.0: (0.148, 0.036),
-        5.0: (0.187, 0.042),
-    },
-    "delta": {
-        0.01: (0.129, 0.040),
-        0.05: (0.103, 0.031),
-        0.10: (0.156, 0.043),
-        0.15: (0.148, 0.041),
-        0.20: (0.214, 0.051),
-        0.25: (0.174, 0.044),
-    },
-}
 
 # Lower bounds of the stopping rule: name -> checks column. "all" is the paper's
 # formula (p-hat* over all candidates), "attempted" the variant over attempted
@@ -495,7 +465,7 @@ def first_legs_rollout(active_set: pd.DataFrame) -> pd.DataFrame:
     whose active sets are recorded)."""
     a = active_set
     if "method" in a.columns:
-        a = a[a["method"] == sweeps.get("case_study").ACTIVE_SET_METHODS[0]]
+        a = a[a["method"] == experiments.get("case_study").ACTIVE_SET_METHODS[0]]
     if "grid_index" in a.columns and len(a):
         a = a[a["grid_index"] == a["grid_index"].min()]
     for c in ("trial", "rollout"):

@@ -38,9 +38,12 @@ from typing import Any
 
 import numpy as np
 
-# Methods of the table; the others get a rate in the full run (for the
-# projection) or borrow the rate of a method with the same per-step work.
-TABLE_METHODS = ("borges_2000", "legs", "tql")
+_PROG = "python -m legs_jax.bench"
+_DESCRIPTION = (
+    "Measure exact Beta samples/s (legs_jax vs jax.random.beta vs NumPy), "
+    "rollout steps/s of the JAX engine vs the NumPy reference, and project "
+    "the wall time of the full sweep (python -m legs_jax.sweep --all)."
+)
 
 
 def _all_methods() -> tuple[str, ...]:
@@ -51,16 +54,37 @@ def _all_methods() -> tuple[str, ...]:
     return methods.names()
 
 
-PROXY = {
-    "dexnet": "tql",
-    "k100_ub": "tql",
-    "borges_100": "legs",
-    "legs_no_as": "borges_2000",
-    "bayes_ucb_100": "legs",
-    "bayes_ucb_2000": "borges_2000",
-}
+def _table_methods() -> tuple[str, ...]:
+    """Methods of the table (their declaration's ``bench``); the others get a rate
+    in the full run (for the projection) or borrow the rate of their
+    ``bench_proxy``, a method with the same per-step work."""
+    from legs_jax import methods
+
+    return tuple(m for m in methods.names() if methods.get(m).bench)
+
+
+def _proxy() -> dict[str, str]:
+    """Method -> the table's method whose rate stands in for it (``bench_proxy``)."""
+    from legs_jax import methods
+
+    out = {}
+    for m in methods.names():
+        if methods.get(m).bench_proxy:
+            out[m] = methods.get(m).bench_proxy
+    return out
+
+
+def __getattr__(name: str):
+    # TABLE_METHODS and PROXY, read from the methods' declarations on first use.
+    if name == "TABLE_METHODS":
+        return _table_methods()
+    if name == "PROXY":
+        return _proxy()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 # Dirichlet checks every this many steps for the methods the main sweep checks
-# (sweeps.main.CHECK_METHODS); the others run without, as in the sweep.
+# (experiments.main.CHECK_METHODS); the others run without, as in the sweep.
 CHECK_EVERY = 100
 # Object sets of SPEC §6 (used when the mesh catalogue is not installed).
 SET_SIZES = {"dexnet_adv": 13, "egad_eval": 49}
@@ -88,44 +112,35 @@ class Settings:
 
 def _with_table(methods: Sequence[str]) -> tuple[str, ...]:
     """The table's methods always run (the projection borrows their rates)."""
-    return tuple(m for m in _all_methods() if m in methods or m in TABLE_METHODS)
+    return tuple(m for m in _all_methods() if m in methods or m in _table_methods())
+
+
+# Sizes of a run: (--quick, full).
+_SIZES = dict(
+    repeats=(2, 3),
+    min_seconds=(0.2, 1.0),
+    sampler_rows=(16, 64),
+    sampler_arms=(2000, 2000),
+    poses=(4, 8),
+    grasps=(2000, 2000),
+    trials=(2, 8),
+    horizon=(100, 1000),
+    rollouts_dense=(32, 128),
+    rollouts_sparse=(256, 2048),
+    reference_horizon=(100, 1000),
+    reference_seconds=(0.3, 3.0),
+)
 
 
 def settings(quick: bool, methods: Sequence[str] | None) -> Settings:
-    if quick:
-        return Settings(
-            quick=True,
-            repeats=2,
-            min_seconds=0.2,
-            sampler_rows=16,
-            sampler_arms=2000,
-            poses=4,
-            grasps=2000,
-            trials=2,
-            horizon=100,
-            rollouts_dense=32,
-            rollouts_sparse=256,
-            reference_horizon=100,
-            reference_seconds=0.3,
-            methods=_with_table(methods or TABLE_METHODS),
-            numpy_all_cores=False,
-        )
+    """A quick run times the table's methods by default, a full run all of them;
+    the NumPy reference also runs on every core in a full run."""
+    default = _table_methods() if quick else _all_methods()
     return Settings(
-        quick=False,
-        repeats=3,
-        min_seconds=1.0,
-        sampler_rows=64,
-        sampler_arms=2000,
-        poses=8,
-        grasps=2000,
-        trials=8,
-        horizon=1000,
-        rollouts_dense=128,
-        rollouts_sparse=2048,
-        reference_horizon=1000,
-        reference_seconds=3.0,
-        methods=_with_table(methods or _all_methods()),
-        numpy_all_cores=True,
+        quick=quick,
+        **{k: v[0 if quick else 1] for k, v in _SIZES.items()},
+        methods=_with_table(methods or default),
+        numpy_all_cores=not quick,
     )
 
 
@@ -353,9 +368,9 @@ def _problem(cfg: Settings):
 
 
 def _checked(method: str) -> bool:
-    import sweeps
+    import experiments
 
-    return method in sweeps.get("main").CHECK_METHODS
+    return method in experiments.get("main").CHECK_METHODS
 
 
 def bench_jax_engine(method: str, cfg: Settings, problem) -> dict[str, float]:
@@ -481,19 +496,20 @@ def projection(rates: dict[str, float]) -> dict[str, Any]:
     sweep records them, as the table measures it). Compilation and precompute are
     not included.
     """
-    import sweeps
+    import experiments
 
+    proxy = _proxy()
     per_exp = {}
     steps_total = 0.0
     seconds = 0.0
-    for name in sweeps.EXPERIMENTS:
-        mod = sweeps.get(name)
+    for name in experiments.EXPERIMENTS:
+        mod = experiments.get(name)
         n_obj = _count_objects(mod.OBJECTS)
         exp_s = 0.0
         for method, _variant, hp in mod.ARMS:
             grid = max([len(v) for v in hp.values() if isinstance(v, tuple)] or [1])
             steps = n_obj * mod.TRIALS * mod.ROLLOUTS * mod.HORIZON * grid
-            rate = rates.get(method) or rates[PROXY[method]]
+            rate = rates.get(method) or rates[proxy[method]]
             steps_total += steps
             exp_s += steps / rate
         per_exp[name] = round(exp_s / 60.0, 2)
@@ -529,12 +545,13 @@ def run(cfg: Settings, quiet: bool = False) -> dict[str, Any]:
 
     problem = _problem(cfg)
     steps: dict[str, dict[str, float]] = {}
+    table = _table_methods()
     jax_rates: dict[str, float] = {}
     for method in cfg.methods:
         _say(f"engine: {method} (JAX)", quiet)
         row = bench_jax_engine(method, cfg, problem)
         jax_rates[method] = row["jax"]
-        if method in TABLE_METHODS:
+        if method in table:
             _say(f"engine: {method} (NumPy reference)", quiet)
             row["numpy"] = bench_reference(method, cfg, problem)
             row["ratio"] = row["jax"] / row["numpy"]
@@ -613,8 +630,9 @@ def format_table(r: dict[str, Any]) -> str:
         f" {'NumPy all cores':>16} {'ratio':>7} {'compile':>8}"
     )
     lines.append(header)
+    table = _table_methods()
     rows = r["steps_per_s"]
-    for method in sorted(rows, key=lambda m: (m not in TABLE_METHODS, m)):
+    for method in sorted(rows, key=lambda m: (m not in table, m)):
         row = rows[method]
         np_ = _fmt_rate(row["numpy"]) if "numpy" in row else "-"
         ratio = f"{row['ratio']:.1f}x" if "ratio" in row else "-"
@@ -637,14 +655,7 @@ def format_table(r: dict[str, Any]) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="python -m legs_jax.bench",
-        description=(
-            "Measure exact Beta samples/s (legs_jax vs jax.random.beta vs NumPy), "
-            "rollout steps/s of the JAX engine vs the NumPy reference, and project "
-            "the wall time of the full sweep (python -m legs_jax.sweep --all)."
-        ),
-    )
+    p = argparse.ArgumentParser(prog=_PROG, description=_DESCRIPTION)
     p.add_argument(
         "--json", action="store_true", help="print one JSON object instead of a table"
     )

@@ -1,8 +1,9 @@
 """Prior-only rows of Table I and other per-object statistics of a problem.
 
 Gaps follow SPEC §5: Δ = Σ_s λ_s (p*_s − p[s, π(s)]) with p*_s the best p of the
-trial's reservoir of pose s; Dex-Net: π(s) = argmax q over the valid grasps (ties:
-lowest index); K100 upper bound: π(s) = argmax p over the 100 grasps of highest q.
+trial's reservoir of pose s; by the rule a method declares (``prior_only``):
+"greedy" (Dex-Net), π(s) = argmax q over the valid grasps (ties: lowest index);
+"top" (the K100 upper bound), π(s) = argmax p over the 100 grasps of highest q.
 A pose without valid grasps adds nothing. Per object, the mean over trials.
 """
 
@@ -10,10 +11,20 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["PAPER", "prior_only_gaps", "top_by_prior"]
+__all__ = ["PAPER", "prior_only_gaps", "prior_only_rows", "top_by_prior"]
 
-#: Table I of the paper: (Dex-Net greedy gap, K100 upper-bound gap) per set.
+#: Table I of the paper: the gaps of the prior-only rows (in the order of
+#: :func:`prior_only_rows`: greedy, then top) per set.
 PAPER = {"dexnet_adv": (0.56, 0.08), "egad_eval": (0.59, 0.13)}
+
+
+def prior_only_rows() -> dict[str, str]:
+    """Table I's rows that the prior alone decides, from the methods' declarations:
+    method -> its rule (``"greedy"`` or ``"top"``), in registry order."""
+    from legs_jax import methods
+
+    rows = {m: methods.get(m).prior_only for m in methods.names()}
+    return {m: rule for m, rule in rows.items() if rule}
 
 
 def top_by_prior(q: np.ndarray, valid: np.ndarray, k: int) -> np.ndarray:
@@ -32,7 +43,8 @@ def prior_only_gaps(
     valid: np.ndarray,  # [T, P, K]
     k: int = 100,
 ) -> dict[str, np.ndarray]:
-    """Per-trial gaps [T] of the Dex-Net greedy row and the K-top upper bound."""
+    """Per-trial gaps [T] of the greedy row and the K-top upper bound (by rule:
+    ``"greedy"``, ``"top"``), and the λ-weighted p* (``"p_star"``)."""
     p = np.where(valid, robustness, 0.0).astype(np.float64)
     p_star = p.max(axis=-1)  # [T, P]
     greedy = top_by_prior(prior, valid, 1)[..., 0]  # [T, P]
@@ -46,7 +58,7 @@ def prior_only_gaps(
     p_ub = p_top.max(axis=-1)
     lam = np.asarray(landing, np.float64)
     return {
-        "dexnet": ((p_star - p_greedy) * lam).sum(axis=-1),
-        "k100_ub": ((p_star - p_ub) * lam).sum(axis=-1),
+        "greedy": ((p_star - p_greedy) * lam).sum(axis=-1),
+        "top": ((p_star - p_ub) * lam).sum(axis=-1),
         "p_star": (p_star * lam).sum(axis=-1),
     }

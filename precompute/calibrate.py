@@ -9,9 +9,6 @@ rows (0.56, 0.08).
 
 from __future__ import annotations
 
-import argparse
-from pathlib import Path
-
 import numpy as np
 
 from .errors import PrecomputeError
@@ -52,14 +49,14 @@ def set_gaps(problems, noise: float, noises=None) -> dict[str, float]:
         q = _prior.prior_from_noise(pb.robustness, eps, noise)
         g = prior_only_gaps(pb.landing, pb.robustness, q, pb.valid)
         corr = np.corrcoef(pb.robustness[pb.valid], q[pb.valid])[0, 1]
-        rows.append((g["dexnet"].mean(), g["k100_ub"].mean(), corr))
+        rows.append((g["greedy"].mean(), g["top"].mean(), corr))
     a = np.array(rows)
     se = a.std(axis=0, ddof=1) / np.sqrt(len(a)) if len(a) > 1 else np.zeros(3)
     return {
-        "dexnet": float(a[:, 0].mean()),
-        "k100_ub": float(a[:, 1].mean()),
-        "dexnet_se": float(se[0]),
-        "k100_ub_se": float(se[1]),
+        "greedy": float(a[:, 0].mean()),
+        "top": float(a[:, 1].mean()),
+        "greedy_se": float(se[0]),
+        "top_se": float(se[1]),
         "corr": float(a[:, 2].mean()),
     }
 
@@ -69,15 +66,9 @@ def main(argv=None) -> int:
     from . import prior as _prior
     from .analysis import PAPER
     from .build import problem_path, problems_dir
+    from .cli import subcommand_parser
 
-    ap = argparse.ArgumentParser(
-        prog="python -m precompute calibrate",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    ap.add_argument(
-        "--problems", type=Path, help="problem folder (default: data/problems)"
-    )
+    ap = subcommand_parser("calibrate", __doc__)
     ap.add_argument(
         "--noise",
         type=float,
@@ -106,18 +97,18 @@ def main(argv=None) -> int:
             f"\n{set_name}: {len(problems)} objects; paper Dex-Net {paper[0]}, "
             f"K100 UB {paper[1]}"
         )
-        print(f"{'noise':>6} {'dexnet':>7} {'k100_ub':>8} {'corr(p,q)':>9}")
+        print(f"{'noise':>6} {'Dex-Net':>7} {'K100 UB':>8} {'corr(p,q)':>9}")
         for nz in a.noise:
             g = set_gaps(problems, nz, noises)
-            err = (g["dexnet"] - paper[0]) ** 2 + (g["k100_ub"] - paper[1]) ** 2
-            print(f"{nz:6.2f} {g['dexnet']:7.3f} {g['k100_ub']:8.3f} {g['corr']:9.3f}")
+            err = (g["greedy"] - paper[0]) ** 2 + (g["top"] - paper[1]) ** 2
+            print(f"{nz:6.2f} {g['greedy']:7.3f} {g['top']:8.3f} {g['corr']:9.3f}")
             if set_name not in best or err < best[set_name][0]:
                 best[set_name] = (err, nz, g)
     for set_name, (_, nz, g) in best.items():
         print(
             f"closest to the paper on {set_name}: noise={nz}: "
-            f"Dex-Net {g['dexnet']:.3f} ± {g['dexnet_se']:.3f}, "
-            f"K100 UB {g['k100_ub']:.3f} ± {g['k100_ub_se']:.3f}"
+            f"Dex-Net {g['greedy']:.3f} ± {g['greedy_se']:.3f}, "
+            f"K100 UB {g['top']:.3f} ± {g['top_se']:.3f}"
         )
         if nz in (min(a.noise), max(a.noise)):
             print(

@@ -74,7 +74,7 @@ def roc_auc(score: np.ndarray, positive: np.ndarray) -> float:
 
 def object_row(pb, set_name: str) -> dict:
     """Summary statistics of one problem (a :class:`legs_jax.problem.Problem`)."""
-    from .analysis import prior_only_gaps
+    from .analysis import prior_only_gaps, prior_only_rows
 
     P = int(pb.pose_valid.sum())
     valid = pb.valid[:, :P]
@@ -103,15 +103,14 @@ def object_row(pb, set_name: str) -> dict:
         "p_star": float(g["p_star"].mean()),
         "prior_truth_corr": corr,
         "prior_auc": roc_auc(qv, pv >= GOOD),
-        "dexnet_gap": float(g["dexnet"].mean()),
-        "k100_ub_gap": float(g["k100_ub"].mean()),
+        **{f"{m}_gap": float(g[rule].mean()) for m, rule in prior_only_rows().items()},
     }
 
 
 def set_rows(rows: Sequence[dict]) -> list[dict]:
     """Per set: the two prior-only gaps, mean ± SE across objects, beside the
     paper's."""
-    from .analysis import PAPER
+    from .analysis import PAPER, prior_only_rows
 
     out = []
     for set_name in PAPER:
@@ -119,7 +118,7 @@ def set_rows(rows: Sequence[dict]) -> list[dict]:
         if not sel:
             continue
         entry = {"set": set_name, "objects": len(sel)}
-        for j, col in enumerate(("dexnet_gap", "k100_ub_gap")):
+        for j, col in enumerate(f"{m}_gap" for m in prior_only_rows()):
             x = np.array([r[col] for r in sel], np.float64)
             se = x.std(ddof=1) / math.sqrt(len(x)) if len(x) > 1 else float("nan")
             paper = PAPER[set_name][j]
@@ -154,6 +153,8 @@ def _write_csv(rows: Sequence[dict], path: Path) -> Path:
 
 
 def _sets_markdown(sets: Sequence[dict]) -> str:
+    from .analysis import prior_only_rows
+
     label = {"dexnet_adv": "Dex-Net adversarial", "egad_eval": "EGAD evaluation"}
     names = {
         "synthetic": "synthetic GQ-CNN stand-in",
@@ -172,15 +173,18 @@ def _sets_markdown(sets: Sequence[dict]) -> str:
         "corr(p, q) | ROC AUC (p ≥ 0.5) | grasps with p ≥ 0.5 | prior |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
+    cols = [f"{m}_gap" for m in prior_only_rows()]
     for s in sets:
         mark = {True: "", False: " (outside ±0.05)"}
+        gaps = "".join(
+            f"{s[c]:.3f} ± {s[c + '_se']:.3f}{mark[s[c + '_within_0.05']]} | "
+            f"{s[c + '_paper']:.2f} | "
+            for c in cols
+        )
         lines.append(
             f"| {label.get(s['set'], s['set'])} | {s['objects']} | "
-            f"{s['dexnet_gap']:.3f} ± {s['dexnet_gap_se']:.3f}"
-            f"{mark[s['dexnet_gap_within_0.05']]} | {s['dexnet_gap_paper']:.2f} | "
-            f"{s['k100_ub_gap']:.3f} ± {s['k100_ub_gap_se']:.3f}"
-            f"{mark[s['k100_ub_gap_within_0.05']]} | {s['k100_ub_gap_paper']:.2f} | "
-            f"{s['prior_truth_corr']:.2f} | {s.get('prior_auc', float('nan')):.2f} | "
+            + gaps
+            + f"{s['prior_truth_corr']:.2f} | {s.get('prior_auc', float('nan')):.2f} | "
             f"{100 * s['frac_p_ge_0.5']:.1f} % | {s.get('prior', '?')} |"
         )
     return "\n".join(lines) + "\n"
@@ -344,14 +348,9 @@ def reliability_figure(counts: dict, priors: dict, path: Path) -> Path:
 
 # ------------------------------------------------------------------------- CLI
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
-        prog="python -m precompute report",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    ap.add_argument(
-        "--problems", type=Path, help="problem folder (default: data/problems)"
-    )
+    from .cli import subcommand_parser
+
+    ap = subcommand_parser("report", __doc__)
     ap.add_argument(
         "--out",
         type=Path,

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import tempfile
 import zlib
 from pathlib import Path
 from types import SimpleNamespace
@@ -25,17 +26,18 @@ from types import SimpleNamespace
 import numpy as np
 import pandas as pd
 
-import sweeps
+import experiments
 from legs_jax import problem as problem_mod
 from legs_jax import results as res
 from legs_jax import synthetic
+from legs_jax.sweep.store import _grasps_table
 
 DEXNET = ("bar_clamp", "climbing_hold", "pawn", "turbine_housing")
 EGAD = ("A0", "C3", "F6")
 CASE = ("climbing_hold", "C3", "F6", "turbine_housing")
 SET_OF = {**{o: "dexnet_adv" for o in DEXNET}, **{o: "egad_eval" for o in EGAD}}
 OBJECT_ID = {o: i for i, o in enumerate(DEXNET + EGAD)}
-ARMS = sweeps.get("main").ARMS
+ARMS = experiments.get("main").ARMS
 # Typical final gap of each arm (roughly the paper's Table I).
 LEVEL = {
     ("dexnet", ""): 0.55,
@@ -50,9 +52,7 @@ LEVEL = {
 DEFAULTS = dict(
     s=1.0, prior_offset=1.0, delta=0.05, gamma=0.2, k=100, n=100, epsilon=0.1, eta=0.1
 )
-S_GRID = (0.0, 1.0, 2.0, 3.0, 4.0, 5.0)
-DELTA_GRID = (0.01, 0.05, 0.10, 0.15, 0.20, 0.25)
-RHO_MIN = tuple(round(0.05 * i, 2) for i in range(1, 20))
+RHO_MIN = experiments.get("early_stopping").RHO_MIN
 
 T, R, H = 2, 3, 600
 RECORD_EVERY, CHECK_EVERY = 10, 100
@@ -225,25 +225,14 @@ def _write_experiment(root: Path, name: str, arms, objects, *, checks, active, s
         d / "objects.parquet",
     )
     if active:
-        frames = []
-        for o, pb in zip(objects, problems, strict=True):
-            s, k = np.nonzero(pb.valid[0])
-            frames.append(
-                pd.DataFrame(
-                    {
-                        "object": o,
-                        "trial": np.zeros(len(s), np.int64),
-                        "pose": s.astype(np.int64),
-                        "grasp": k.astype(np.int64),
-                        "landing": pb.landing[s].astype(np.float64),
-                        "robustness": pb.robustness[0][s, k].astype(np.float64),
-                        "prior": pb.prior[0][s, k].astype(np.float64),
-                    }
-                )
-            )
-        res.atomic_write_parquet(
-            pd.concat(frames, ignore_index=True), d / "grasps.parquet"
-        )
+        # The reservoirs' table as the sweep writes it, from the problem files.
+        with tempfile.TemporaryDirectory() as tmp:
+            entries = []
+            for o, pb in zip(objects, problems, strict=True):
+                path = problem_mod.save(pb, Path(tmp) / f"{o}.npz")
+                entries.append(SimpleNamespace(name=o, path=path))
+            grasps = _grasps_table(SimpleNamespace(objects=entries))
+        res.atomic_write_parquet(grasps, d / "grasps.parquet")
     manifest = {
         "experiment": name,
         "status": "complete",
@@ -282,24 +271,18 @@ def make_results(root: str | Path, seed: int = 0) -> Path:
     _write_experiment(
         root, "early_stopping", legs, DEXNET, checks=True, active=False, seed=seed
     )
-    _write_experiment(
-        root,
-        "prior_strength",
-        [("legs", "", {"s": S_GRID, "delta": 0.07})],
-        ("bar_clamp",),
-        checks=False,
-        active=False,
-        seed=seed + 2,
-    )
-    _write_experiment(
-        root,
-        "confidence",
-        [("legs", "", {"delta": DELTA_GRID, "s": 1.0})],
-        ("bar_clamp",),
-        checks=False,
-        active=False,
-        seed=seed + 3,
-    )
+    # The appendix grids as their experiments declare them (LEGS on the bar clamp).
+    for i, name in enumerate(("prior_strength", "confidence")):
+        decl = experiments.get(name)
+        _write_experiment(
+            root,
+            name,
+            decl.ARMS,
+            decl.OBJECTS,
+            checks=False,
+            active=False,
+            seed=seed + 2 + i,
+        )
     return root
 
 

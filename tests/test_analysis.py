@@ -163,15 +163,8 @@ def test_missing_column_is_named(main_runs):
 def _checks(rows):
     return pd.DataFrame(
         rows,
-        columns=[
-            "object",
-            "trial",
-            "rollout",
-            "step",
-            "p_lower",
-            "p_lower_attempted",
-            "true_performance",
-        ],
+        columns="object trial rollout step p_lower p_lower_attempted "
+        "true_performance".split(),
     )
 
 

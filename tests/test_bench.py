@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-import sweeps
+import experiments
 from legs_jax import bench
 
 REQUIRED = (
@@ -66,8 +66,8 @@ def test_projection_adds_up_the_sweep():
     rates = {"borges_2000": 1e4, "legs": 1e5, "tql": 2e5}
     p = bench.projection(rates)
     expected_s = 0.0
-    for name in sweeps.EXPERIMENTS:
-        mod = sweeps.get(name)
+    for name in experiments.EXPERIMENTS:
+        mod = experiments.get(name)
         n_obj = bench._count_objects(mod.OBJECTS)
         for method, _, hp in mod.ARMS:
             grid = max([len(v) for v in hp.values() if isinstance(v, tuple)] or [1])

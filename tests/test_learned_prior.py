@@ -5,13 +5,12 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
+from helpers import run_module
 
 import precompute
 from precompute import depth as D
@@ -299,18 +298,17 @@ def test_learned_prior_without_weights_is_a_clear_error(tmp_path, monkeypatch, c
 # ------------------------------------------------------------------- training
 
 
+def _train_prior(out: Path, jobs: str, env, cwd):
+    """``python -m precompute train-prior --quick`` into ``out`` with ``jobs``
+    processes."""
+    args = ["train-prior", "--quick", "--quiet", "--out", str(out), "--jobs", jobs]
+    return run_module("precompute", args, cwd=cwd, env=env, timeout=300)
+
+
 def test_train_prior_quick_lowers_the_validation_loss(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(REPO))
     out = tmp_path / "w"
-    r = subprocess.run(
-        [sys.executable, "-m", "precompute", "train-prior", "--quick", "--quiet"]
-        + ["--out", str(out), "--jobs", "2"],
-        capture_output=True,
-        text=True,
-        env=env,
-        cwd=tmp_path,
-        timeout=300,
-    )
+    r = _train_prior(out, "2", env, tmp_path)
     assert r.returncode == 0, r.stderr[-2000:]
     m = json.loads((out / "metrics.json").read_text())
     h = m["history"]
@@ -364,15 +362,7 @@ def test_train_prior_is_deterministic_whatever_the_process_count(tmp_path):
     shas = []
     for jobs in ("1", "2"):
         out = tmp_path / jobs
-        r = subprocess.run(
-            [sys.executable, "-m", "precompute", "train-prior", "--quick", "--quiet"]
-            + ["--out", str(out), "--jobs", jobs],
-            capture_output=True,
-            text=True,
-            env=env,
-            cwd=tmp_path,
-            timeout=300,
-        )
+        r = _train_prior(out, jobs, env, tmp_path)
         assert r.returncode == 0, r.stderr[-2000:]
         shas.append(Q.file_sha256(out / "weights.npz"))
     assert shas[0] == shas[1]

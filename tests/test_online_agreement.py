@@ -12,21 +12,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import catalog_problem
 
-import precompute
 from legs_jax.online import agreement as A
-from precompute.build import BuildParams, build_problem
 
 
 @pytest.fixture(scope="module")
 def clamp():
-    info = precompute.catalog.lookup("bar_clamp")
-    return build_problem(
-        info.mesh_path,
-        units=info.units,
-        name=info.name,
-        params=BuildParams(trials=1, grasps=200, samples=50),
-    )
+    return catalog_problem("bar_clamp", trials=1, grasps=200, samples=50)
 
 
 def _run(pb, rollouts, horizon):

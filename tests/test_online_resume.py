@@ -20,10 +20,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import catalog_problem
 
-import precompute
 from legs_jax import problem as problem_mod
-from precompute.build import BuildParams, build_problem
 
 ROOT = Path(__file__).resolve().parents[1]
 _CACHE = Path()  # a compilation cache shared by the runs of this module
@@ -38,13 +37,7 @@ def _compile_cache(tmp_path_factory):
 @pytest.fixture(scope="module")
 def clamp_problem(tmp_path_factory) -> Path:
     """A small bar_clamp problem (1 trial, 100 grasps a pose, 20 samples)."""
-    info = precompute.catalog.lookup("bar_clamp")
-    pb = build_problem(
-        info.mesh_path,
-        units=info.units,
-        name=info.name,
-        params=BuildParams(trials=1, grasps=100, samples=20),
-    )
+    pb = catalog_problem("bar_clamp", trials=1, grasps=100, samples=20)
     path = tmp_path_factory.mktemp("problem") / "bar_clamp.npz"
     problem_mod.save(pb, path)
     return path

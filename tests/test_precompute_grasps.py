@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import os
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
+from helpers import catalog_problem, run_module
 
 import precompute
 from precompute import grasps as G
@@ -171,13 +170,7 @@ def test_fingers_and_palm_collisions():
 
 
 def test_reservoirs_of_a_real_object_hold_good_and_bad_grasps():
-    info = precompute.catalog.lookup("endstop_holder")
-    pb = build_problem(
-        info.mesh_path,
-        units=info.units,
-        name=info.name,
-        params=BuildParams(trials=1, grasps=300, samples=50),
-    )
+    pb = catalog_problem("endstop_holder", trials=1, grasps=300, samples=50)
     p = pb.robustness[pb.valid]
     assert pb.valid.sum(axis=-1).min() == 300
     # antipodal grasps, yet perturbation separates them: both tails are populated
@@ -218,8 +211,8 @@ def test_prior_only_gaps_match_a_hand_computation():
     g = prior_only_gaps(landing, rob, prior, valid, k=2)
     # pose 0: p* 0.9, greedy picks p=0.1; top-2 by q = {0, 2} -> best p 0.5
     # pose 1: p* 0.2, greedy picks p=0.0; top-2 = {1, 0} -> 0.2
-    assert g["dexnet"][0] == pytest.approx(0.75 * 0.8 + 0.25 * 0.2)
-    assert g["k100_ub"][0] == pytest.approx(0.75 * 0.4 + 0.25 * 0.0)
+    assert g["greedy"][0] == pytest.approx(0.75 * 0.8 + 0.25 * 0.2)
+    assert g["top"][0] == pytest.approx(0.75 * 0.4 + 0.25 * 0.0)
     assert top_by_prior(prior, valid, 3)[0, 1].tolist() == [1, 0, -1]
 
 
@@ -329,14 +322,7 @@ def test_ensure_builds_once_and_rebuilds_when_the_mesh_changes(tmp_path):
 
 def _cli(*args, cwd=REPO):
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    return subprocess.run(
-        [sys.executable, "-m", "precompute", *args],
-        capture_output=True,
-        text=True,
-        cwd=cwd,
-        env=env,
-        timeout=120,
-    )
+    return run_module("precompute", args, cwd=cwd, env=env, timeout=120)
 
 
 def test_cli_help_and_clear_errors(tmp_path):

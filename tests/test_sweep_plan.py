@@ -21,7 +21,7 @@ import pandas as pd
 import pytest
 import sweep_fakes
 
-import sweeps
+import experiments
 from legs_jax import methods, problem, results, sweep, synthetic
 
 
@@ -94,9 +94,9 @@ def _read_all(folder: Path) -> dict[str, bytes]:
 
 
 # ------------------------------------------------------------------ experiments
-@pytest.mark.parametrize("name", sweeps.EXPERIMENTS)
+@pytest.mark.parametrize("name", experiments.EXPERIMENTS)
 def test_experiment_modules_declare_valid_arms(name):
-    mod = sweeps.get(name)
+    mod = experiments.get(name)
     assert mod.NAME == name
     arms = [sweep.make_arm(*a) for a in mod.ARMS]
     assert arms
@@ -106,27 +106,27 @@ def test_experiment_modules_declare_valid_arms(name):
 
 
 def test_paper_grids_and_extra_row():
-    main = [sweep.make_arm(*a) for a in sweeps.get("main").ARMS]
-    paper = set(sweeps.get("main").TABLE_ORDER)
+    main = [sweep.make_arm(*a) for a in experiments.get("main").ARMS]
+    paper = set(experiments.get("main").TABLE_ORDER)
     extra = {"bayes_ucb_100", "bayes_ucb_2000"}  # Table I's rows beyond the paper's
     assert {a.method for a in main} == paper | extra
     assert paper | extra <= set(methods.names())
-    synthetic = [sweep.make_arm(*a) for a in sweeps.get("prior_synthetic").ARMS]
+    synthetic = [sweep.make_arm(*a) for a in experiments.get("prior_synthetic").ARMS]
     assert [a.label for a in synthetic] == [
         a.method for a in main if a.method in paper and not a.variant
     ]
-    assert sweeps.get("prior_synthetic").PRIOR == "synthetic"
+    assert experiments.get("prior_synthetic").PRIOR == "synthetic"
     orig = [a for a in main if a.variant == "orig_prior"]
     assert len(orig) == 1 and orig[0].method == "borges_2000"
     assert dict(orig[0].grid[0])["prior_offset"] == 0.0
     assert dict(orig[0].grid[0])["s"] == 5.0
-    (ps,) = [sweep.make_arm(*a) for a in sweeps.get("prior_strength").ARMS]
+    (ps,) = [sweep.make_arm(*a) for a in experiments.get("prior_strength").ARMS]
     assert [dict(g)["s"] for g in ps.grid] == [0, 1, 2, 3, 4, 5]
     assert {dict(g)["delta"] for g in ps.grid} == {0.07}
-    (cf,) = [sweep.make_arm(*a) for a in sweeps.get("confidence").ARMS]
+    (cf,) = [sweep.make_arm(*a) for a in experiments.get("confidence").ARMS]
     assert [dict(g)["delta"] for g in cf.grid] == [0.01, 0.05, 0.10, 0.15, 0.20, 0.25]
     assert {dict(g)["s"] for g in cf.grid} == {1.0}
-    assert sweeps.get("case_study").OBJECTS == (
+    assert experiments.get("case_study").OBJECTS == (
         "climbing_hold",
         "C3",
         "F6",
@@ -378,7 +378,7 @@ def test_cli_runs_and_writes_schema(tmp_path, probs, fake_engine, capsys):
     need += ["seed", *results.HPARAM_COLUMNS, "horizon", "final_gap"]
     need += ["final_performance", "successes", "distinct_grasps", "replacements"]
     assert list(runs.columns) == need
-    n_arms = len(sweeps.get("main").ARMS)
+    n_arms = len(experiments.get("main").ARMS)
     assert len(runs) == n_arms * 2 * 2 * 2  # arms x objects x trials x rollouts
     orig = runs[runs.variant == "orig_prior"]
     assert set(orig.method) == {"borges_2000"} and set(orig.prior_offset) == {0.0}
@@ -636,8 +636,8 @@ def test_catalog_names_resolve_in_catalogue_order():
     with pytest.raises(sweep.SweepError, match="did you mean bar_clamp"):
         sweep.experiments._resolve_names(["bar_clam"], catalog)
     # Every object named by an experiment exists.
-    for name in sweeps.EXPERIMENTS:
-        mod = sweeps.get(name)
+    for name in experiments.EXPERIMENTS:
+        mod = experiments.get(name)
         sweep.experiments._resolve_names(
             list(mod.OBJECTS) + list(mod.SMOKE_OBJECTS), catalog
         )

@@ -24,6 +24,7 @@ from legs_jax.errors import ConfigError
 from legs_jax.methods.base import Method
 
 __all__ = [
+    "DEFAULT",
     "Method",
     "builtin",
     "column_defaults",
@@ -45,6 +46,8 @@ _PAPER = (
     "legs",
     "tql",
 )
+# The method run where none is named (the online session, its CLI): the paper's.
+DEFAULT = "legs"
 _NOT_METHODS = ("base", "conformance")
 _REGISTRY: dict[str, Method] = {}
 

@@ -222,7 +222,14 @@ class Method:
     competitor); ``cost(cfg)`` is the number of candidate grasps a step touches
     (planning) and ``dense`` says its per-step work and state are O(K) (smaller
     batches suit it). ``reference`` (or None) ``(problem, trial, hp)`` builds its
-    one-rollout NumPy twin (:mod:`legs_jax.reference`).
+    one-rollout NumPy twin (:mod:`legs_jax.reference`). ``bench`` makes it a row of
+    the benchmark's table (``legs_jax.bench``, timed against its NumPy twin);
+    ``bench_proxy`` names a method of that table with the same per-step work, whose
+    measured rate stands in for this one's when the benchmark projects a sweep.
+    ``prior_only`` marks a row whose gap the prior and the reservoirs alone decide,
+    by its rule: ``"greedy"`` (the grasp of highest q) or ``"top"`` (the best true
+    grasp among the top-k by q); :mod:`precompute.analysis` computes those gaps
+    without running it.
     """
 
     name: str
@@ -251,6 +258,9 @@ class Method:
     cost: Callable[[Config], float] = lambda cfg: float(cfg.num_grasps)
     dense: bool = False
     reference: Callable[..., Any] | None = None
+    bench: bool = False
+    bench_proxy: str = ""
+    prior_only: str = ""
 
     def defaults(self) -> dict[str, float | int]:
         """Every hyperparameter with its default."""

@@ -24,7 +24,7 @@ from scipy.special import betaincinv
 from legs_jax import reference as ref
 from legs_jax import sampling
 from legs_jax.methods import _dense, _slots
-from legs_jax.methods.base import Method, argmin_id_of_max, gather_at
+from legs_jax.methods.base import TOP_FIXED, Method, argmin_id_of_max, gather_at
 
 __all__ = ["METHOD", "Reference", "UCBState", "make"]
 
@@ -40,8 +40,24 @@ def level(count: jax.Array) -> jax.Array:
 
 
 def make(name: str, top: bool, **declaration) -> Method:
-    """Bayes-UCB over the top-100 grasps by prior (``top``) or over all K."""
+    """Bayes-UCB over the top-100 grasps by prior (``top``) or over all K; its
+    description, labels, cost, density and NumPy twin follow from ``top``
+    (``declaration`` adds the rest, e.g. its style)."""
     base = _slots if top else _dense
+    k = TOP_FIXED if top else 2000
+    over = "the top-100" if top else "all K grasps"
+    declaration = {
+        "description": f"Bayes-UCB (K={k}): highest posterior quantile over {over}",
+        "label": f"Bayes-UCB (K_s={k})",
+        "short_label": f"BayesUCB-{k}",
+        "reference": lambda problem, trial, hp: Reference(
+            problem, trial, hp, top=TOP_FIXED if top else None
+        ),
+        **({"cost": lambda cfg: float(cfg.top)} if top else {"dense": True}),
+        # the benchmark's method with the same per-step work (projection)
+        "bench_proxy": "legs" if top else "borges_2000",
+        **declaration,
+    }
 
     def init(ctx, cfg):
         if top:
@@ -104,13 +120,4 @@ class Reference(ref.Borges):
         self.count[s] += 1
 
 
-METHOD = make(
-    "bayes_ucb_2000",
-    top=False,
-    description="Bayes-UCB (K=2000): highest posterior quantile over all K grasps",
-    label="Bayes-UCB (K_s=2000)",
-    short_label="BayesUCB-2000",
-    style=dict(color="#17becf", ls="--", lw=1.6),
-    dense=True,
-    reference=lambda problem, trial, hp: Reference(problem, trial, hp, top=None),
-)
+METHOD = make("bayes_ucb_2000", top=False, style=dict(color="#17becf", ls="--", lw=1.6))

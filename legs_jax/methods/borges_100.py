@@ -7,6 +7,7 @@ from legs_jax.methods.base import TOP_FIXED, Method
 METHOD = Method(
     name="borges_100",
     description="BORGES (K=100): Thompson sampling over the top-100 by prior",
+    bench_proxy="legs",
     **_slots.FUNCTIONS,
     init=lambda ctx, cfg: _slots.init(ctx, cfg, cfg.top, refill=False),
     label="BORGES (K_s=100)",

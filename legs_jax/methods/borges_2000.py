@@ -7,6 +7,7 @@ from legs_jax.methods.base import Method
 METHOD = Method(
     name="borges_2000",
     description="BORGES (K=2000): Thompson sampling over all K grasps",
+    bench=True,
     **_dense.FUNCTIONS,
     init=lambda ctx, cfg: _dense.init(ctx, cfg, removable=False),
     label="BORGES (K_s=2000)",

@@ -12,14 +12,13 @@ from legs_jax.methods.base import Method
 METHOD = Method(
     name="dexnet",
     description="Dex-Net: argmax prior, no exploration (constant gap)",
-    **_fixed.FUNCTIONS,
+    **_fixed.CONSTANT_ROW,
+    prior_only="greedy",
     init=lambda ctx, cfg: _fixed.init(ctx, cfg, which="dexnet"),
     candidates=_fixed.candidates_dexnet,
-    learns=False,
     label="Dex-Net (synthetic prior)",
     short_label="Dex-Net*",
     style=dict(color="#7f7f7f", ls="--", lw=1.6),
-    cost=lambda cfg: 1.0,
     reference=lambda problem, trial, hp: ref.Fixed(
         problem, trial, hp, ref.prior_choice(problem, trial)
     ),

@@ -10,15 +10,14 @@ from legs_jax.methods.base import TOP_FIXED, Method
 METHOD = Method(
     name="k100_ub",
     description="K100 upper bound: best true grasp of the top-100 by prior (oracle)",
-    **_fixed.FUNCTIONS,
+    **_fixed.CONSTANT_ROW,
+    prior_only="top",
     init=lambda ctx, cfg: _fixed.init(ctx, cfg, which="k100_ub"),
     candidates=_fixed.candidates_top,
-    learns=False,
     label="K_s=100 upper bound",
     short_label="K100-UB",
     style=dict(color="#000000", ls=":", lw=1.6),
     oracle=True,
-    cost=lambda cfg: 1.0,
     reference=lambda problem, trial, hp: ref.Fixed(
         problem,
         trial,

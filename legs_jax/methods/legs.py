@@ -60,6 +60,7 @@ def check(hp, num_grasps):
 METHOD = Method(
     name="legs",
     description="LEGS: active set of k grasps, pruned and refilled",
+    bench=True,
     **_slots.FUNCTIONS,
     init=lambda ctx, cfg: _slots.init(ctx, cfg, cfg.k, refill=True),
     prune=_slots.prune_refill,

@@ -19,6 +19,7 @@ class LegsNoASHParams(NamedTuple):
 METHOD = Method(
     name="legs_no_as",
     description="LEGS(-AS): all K grasps, LEGS pruning, no active set",
+    bench_proxy="borges_2000",
     **_dense.FUNCTIONS,
     init=lambda ctx, cfg: _dense.init(ctx, cfg, removable=True),
     prune=_dense.prune,

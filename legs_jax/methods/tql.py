@@ -95,6 +95,7 @@ def candidates(st: TQLState, ctx: Ctx, cfg: Config):
 METHOD = Method(
     name="tql",
     description="Tabular Q-learning, ε-greedy over all K grasps",
+    bench=True,
     init=init,
     select=select,
     update=update,

@@ -37,11 +37,16 @@ from legs_jax import methods as methods_mod
 from legs_jax.errors import ConfigError
 from legs_jax.methods.base import Config, Ctx, Method, Tables
 
-__all__ = ["ORACLES", "Loop", "method_names", "check_hparams"]
+__all__ = ["ORACLES", "Loop", "default_method", "method_names", "check_hparams"]
 
 # Methods that read the ground truth p (declared ``oracle``): they cannot run on a
 # robot.
 ORACLES = tuple(m for m in methods_mod.names() if methods_mod.get(m).oracle)
+
+
+def default_method() -> str:
+    """The method run where none is named (the registry's ``DEFAULT``)."""
+    return methods_mod.DEFAULT
 
 
 def method_names() -> tuple[str, ...]:

@@ -31,7 +31,7 @@ from scipy import stats
 
 from legs_jax import engine
 from legs_jax.online.robot import World
-from legs_jax.online.simulate import Simulation
+from legs_jax.online.simulate import Simulation, save_figure
 from legs_jax.problem import stack
 
 __all__ = ["SLACK", "compare", "online_curves", "engine_curves"]
@@ -42,7 +42,7 @@ SLACK = 0.02
 def online_curves(
     problem,
     *,
-    method: str = "legs",
+    method: str | None = None,
     rollouts: int,
     horizon: int,
     every: int,
@@ -141,33 +141,19 @@ def main(args) -> int:
     total = (args.rollouts + args.recognition_rollouts) * args.horizon
     bar = None if args.quiet else tqdm(total=total, unit="grasp", desc="online")
     tick = None if bar is None else (lambda _sim: bar.update(1))
+    run = dict(method=args.method, horizon=args.horizon, every=args.every)
     t0 = time.perf_counter()
-    eng = engine_curves(
-        pb,
-        method=args.method,
-        rollouts=args.engine_rollouts,
-        horizon=args.horizon,
-        every=args.every,
-    )
+    eng = engine_curves(pb, rollouts=args.engine_rollouts, **run)
     t_eng = time.perf_counter() - t0
-    on = online_curves(
-        pb,
-        method=args.method,
-        rollouts=args.rollouts,
-        horizon=args.horizon,
-        every=args.every,
-        progress=tick,
-    )
+    on = online_curves(pb, rollouts=args.rollouts, progress=tick, **run)
     rec = None
     if args.recognition_rollouts:
         rec = online_curves(
             pb,
-            method=args.method,
             rollouts=args.recognition_rollouts,
-            horizon=args.horizon,
-            every=args.every,
             given_poses=False,
             progress=tick,
+            **run,
         )
     if bar is not None:
         bar.close()
@@ -265,10 +251,4 @@ def _figure(c, rec, name, method, path) -> Path:
         ax.plot(c["steps"], rec["gap"].mean(0), "s--", label="online, recognition")
     ax.set_xlabel("grasp attempts")
     ax.set_ylabel("mean gap Δ_t")
-    ax.set_title(f"{name}: {method}", fontsize=10)
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, ax, f"{name}: {method}", path)

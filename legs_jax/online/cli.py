@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from legs_jax._cli import compile_cache_arg, out_arg, quiet_arg
 from legs_jax._jax_cache import compile_cache
 from legs_jax.errors import ConfigError
 from legs_jax.online.errors import InputError, OrderError, StateError
@@ -33,12 +34,13 @@ Run "python -m legs_jax.online COMMAND --help" for a command's options.
 
 
 def _session_args(p: argparse.ArgumentParser) -> None:
-    from legs_jax.online._adapter import method_names
+    from legs_jax.online._adapter import default_method, method_names
 
     p.add_argument(
         "--method",
-        default="legs",
-        help=f"exploration method: {', '.join(method_names())} (default legs)",
+        default=default_method(),
+        help=f"exploration method: {', '.join(method_names())} (default "
+        f"{default_method()})",
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the method's draws (0)")
     p.add_argument(
@@ -55,19 +57,13 @@ def _session_args(p: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="NAME=VALUE",
-        help="one of the method's own hyperparameters (legs: s, prior_offset, "
-        "delta, gamma, k, n; tql: epsilon, eta; ...), repeatable",
+        help="one of the method's own hyperparameters (those its declaration "
+        "lists, e.g. LEGS: s, prior_offset, delta, gamma, k, n), repeatable",
     )
 
 
 def _cache_arg(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--compile-cache",
-        metavar="DIR",
-        help="JAX persistent compilation cache, so that a restarted session skips "
-        "compiling (default $JAX_COMPILATION_CACHE_DIR, else "
-        "$XDG_CACHE_HOME/legs_jax/jax or ~/.cache/legs_jax/jax; 'off' disables)",
-    )
+    compile_cache_arg(p, "a restarted session skips compiling")
 
 
 def _hparams(items) -> dict:
@@ -149,7 +145,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--eval-every", type=int, default=100, help="curve point every N steps (100)"
     )
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    quiet_arg(p)
     _session_args(p)
     _cache_arg(p)
 
@@ -169,13 +165,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--views", type=int, default=60, help="views per object (60)")
     p.add_argument("--seed", type=int, default=0, help="seed (0)")
-    p.add_argument(
-        "--out",
-        type=Path,
-        default=Path("results/online/recognition.md"),
-        help="markdown table (results/online/recognition.md)",
+    out_arg(
+        p,
+        "results/online/recognition.md",
+        "markdown table (results/online/recognition.md)",
     )
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    quiet_arg(p)
 
     p = sub.add_parser(
         "agreement",
@@ -187,7 +182,11 @@ def build_parser() -> argparse.ArgumentParser:
         "gaps), and a figure. Optionally also sessions with recognition.",
     )
     p.add_argument("--problem", type=Path, required=True, help="problem file (.npz)")
-    p.add_argument("--method", default="legs", help="method (legs)")
+    from legs_jax.online._adapter import default_method
+
+    p.add_argument(
+        "--method", default=default_method(), help=f"method ({default_method()})"
+    )
     p.add_argument("--rollouts", type=int, default=30, help="online sessions (30)")
     p.add_argument(
         "--engine-rollouts", type=int, default=500, help="engine rollouts (500)"
@@ -200,13 +199,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=0,
         help="sessions with recognition and observed reservoirs (0)",
     )
-    p.add_argument(
-        "--out",
-        type=Path,
-        default=Path("results/online/agreement.md"),
-        help="markdown table; the figure goes next to it (.png)",
+    out_arg(
+        p,
+        "results/online/agreement.md",
+        "markdown table; the figure goes next to it (.png)",
     )
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    quiet_arg(p)
     _cache_arg(p)
 
     p = sub.add_parser(

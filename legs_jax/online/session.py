@@ -33,7 +33,7 @@ import numpy as np
 from legs_jax import keys as keys_mod
 from legs_jax.online import recognition as rec_mod
 from legs_jax.online import sampler as sampler_mod
-from legs_jax.online._adapter import Loop, check_hparams
+from legs_jax.online._adapter import Loop, check_hparams, default_method
 from legs_jax.online.camera import (
     Intrinsics,
     check_camera_pose,
@@ -93,7 +93,7 @@ class Session:
     def create(
         cls,
         folder,
-        method: str = "legs",
+        method: str | None = None,
         *,
         hparams: Mapping | None = None,
         seed: int = 0,
@@ -133,6 +133,7 @@ class Session:
         if given_poses is not None:
             K = max(len(np.asarray(g["valid"])) for g in given_poses.values())
             max_poses = max(max_poses, max(given_poses) + 1)
+        method = method or default_method()
         hp = check_hparams(method, hparams, K)
         cam = default_camera_pose() if camera_pose is None else camera_pose
         cam = check_camera_pose(cam)

@@ -30,7 +30,7 @@ from legs_jax.online.robot import SimRobot, World
 from legs_jax.online.session import Session
 from legs_jax.online.store import atomic_write
 
-__all__ = ["EVAL_SAMPLES", "Simulation"]
+__all__ = ["EVAL_SAMPLES", "Simulation", "save_figure"]
 
 EVAL_SAMPLES = 50
 _RENDER, _EXECUTE, _MOVE, _EVAL = 0, 1, 2, 3
@@ -44,7 +44,7 @@ class Simulation:
         folder,
         world: World,
         *,
-        method: str = "legs",
+        method: str | None = None,
         seed: int = 0,
         resume: bool = False,
         problem=None,
@@ -294,13 +294,8 @@ class Simulation:
             if self.given
             else "recognition + observed reservoirs"
         )
-        ax.set_title(f"{self.world.name}: {self.session.method} ({mode})", fontsize=10)
-        ax.legend(fontsize=8)
-        ax.grid(alpha=0.3)
-        fig.tight_layout()
-        fig.savefig(path, dpi=120)
-        plt.close(fig)
-        return path
+        title = f"{self.world.name}: {self.session.method} ({mode})"
+        return save_figure(fig, ax, title, path)
 
     def close(self) -> None:
         self.session.close()
@@ -321,3 +316,16 @@ def _problem_poses(problem, trial: int) -> dict[int, dict[str, np.ndarray]]:
             "valid": problem.valid[trial, s],
         }
     return out
+
+
+def save_figure(fig, ax, title: str, path):
+    """Title, legend and grid on ``ax``; ``fig`` written to ``path`` and closed."""
+    import matplotlib.pyplot as plt
+
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

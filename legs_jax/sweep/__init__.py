@@ -5,15 +5,15 @@
     python -m legs_jax.sweep --experiment main --problems my_object.npz
     python -m legs_jax.sweep --smoke --out /tmp/smoke   # every experiment, toy size
 
-Each experiment (declared in ``sweeps/``) is split into chunks: one arm (method,
-variant and its hyperparameter grid, which runs as one batch axis), a few objects and
-a block of trials, sized to bound memory and the work lost to an interruption.
-Every finished chunk is written atomically under ``<out>/<experiment>/chunks/``;
-running the same command again skips finished chunks (after checking that they
-were made with the same configuration) and, once all are there, merges them into
-``runs.parquet``, ``curves.parquet`` and ``checks.parquet`` (see
-:mod:`legs_jax.results`). Results never depend on chunking, interruption, device
-count or host count.
+Each experiment (declared in ``experiments/<name>/sweep.py``) is split into chunks: one
+arm (method, variant and its hyperparameter grid, which runs as one batch axis), a few
+objects and a block of trials, sized to bound memory and the work lost to an
+interruption. Every finished chunk is written atomically under
+``<out>/<experiment>/chunks/``; running the same command again skips finished chunks
+(after checking that they were made with the same configuration) and, once all are
+there, merges them into ``runs.parquet``, ``curves.parquet`` and ``checks.parquet`` (see
+:mod:`legs_jax.results`). Results never depend on chunking, interruption, device count
+or host count.
 
 Modules: :mod:`~legs_jax.sweep.plan` (arms, chunks, cost model),
 :mod:`~legs_jax.sweep.experiments` (declarations and objects to plans),

@@ -11,8 +11,9 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-import sweeps
+import experiments
 from legs_jax import results as res
+from legs_jax._cli import compile_cache_arg, quiet_arg
 from legs_jax._jax_cache import compile_cache
 from legs_jax.sweep.execute import finish_experiment, run_experiment
 from legs_jax.sweep.experiments import (
@@ -37,7 +38,25 @@ from legs_jax.sweep.store import (
 )
 
 # ====================================================================== arguments
-EXPERIMENTS = sweeps.EXPERIMENTS
+EXPERIMENTS = experiments.EXPERIMENTS
+
+_PROG = "python -m legs_jax.sweep"
+_DESCRIPTION = (
+    "Run the paper's experiments (SPEC §7) as resumable, chunked sweeps and "
+    "write tidy parquet results under OUT/<experiment>/: runs.parquet (one "
+    "row per run), curves.parquet (gap every 10 steps, mean and standard "
+    "error over the T x R runs of each object, method and hyperparameters), "
+    "checks.parquet (one row per Dirichlet check), manifest.json. Re-running "
+    "the same command resumes: finished chunks are kept and checked against "
+    "the configuration."
+)
+_EPILOG = (
+    "Experiments: "
+    + "; ".join(f"{n} ({experiments.get(n).DESCRIPTION})" for n in EXPERIMENTS)
+    + ". Multi-host: start the same command on every host with --coordinator "
+    "HOST:PORT --num-processes N --process-id I (I = 0..N-1) and a shared "
+    "--out; each process takes every N-th chunk and process 0 merges."
+)
 
 
 def _int_at_least(minimum: int) -> Callable[[str], int]:
@@ -62,25 +81,7 @@ _nonneg_int = _int_at_least(0)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="python -m legs_jax.sweep",
-        description=(
-            "Run the paper's experiments (SPEC §7) as resumable, chunked sweeps and "
-            "write tidy parquet results under OUT/<experiment>/: runs.parquet (one "
-            "row per run), curves.parquet (gap every 10 steps, mean and standard "
-            "error over the T x R runs of each object, method and hyperparameters), "
-            "checks.parquet (one row per Dirichlet check), manifest.json. Re-running "
-            "the same command resumes: finished chunks are kept and checked against "
-            "the configuration."
-        ),
-        epilog=(
-            "Experiments: main (Table I), case_study (Fig. 3), early_stopping "
-            "(Sec. 5.4, Fig. 4), prior_strength and confidence (appendix). "
-            "Multi-host: start the same command on every host with --coordinator "
-            "HOST:PORT --num-processes N --process-id I (I = 0..N-1) and a shared "
-            "--out; each process takes every N-th chunk and process 0 merges."
-        ),
-    )
+    p = argparse.ArgumentParser(prog=_PROG, description=_DESCRIPTION, epilog=_EPILOG)
     what = p.add_argument_group("what to run")
     what.add_argument("--all", action="store_true", help="run every experiment")
     what.add_argument(
@@ -136,12 +137,12 @@ def build_parser() -> argparse.ArgumentParser:
         "default --out results/_scratch/smoke",
     )
     out = p.add_argument_group("output and devices")
-    out.add_argument("--out", metavar="DIR", help="output folder (default results)")
     out.add_argument(
         "--overwrite",
         action="store_true",
         help="delete existing results of the selected experiments and start over",
     )
+    out.add_argument("--out", metavar="DIR", help="output folder (default results)")
     out.add_argument(
         "--no-reuse",
         action="store_true",
@@ -162,14 +163,8 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="print the plan (chunks, rollouts) and exit",
     )
-    out.add_argument(
-        "--compile-cache",
-        metavar="DIR",
-        help="JAX persistent compilation cache, so that resumed and repeated sweeps "
-        "skip compiling (default $JAX_COMPILATION_CACHE_DIR, else "
-        "$XDG_CACHE_HOME/legs_jax/jax or ~/.cache/legs_jax/jax; 'off' disables)",
-    )
-    out.add_argument("--quiet", action="store_true", help="no progress bar")
+    compile_cache_arg(out, "resumed and repeated sweeps skip compiling")
+    quiet_arg(out)
     dist = p.add_argument_group("multi-host (jax.distributed)")
     dist.add_argument("--coordinator", metavar="HOST:PORT", help="coordinator address")
     dist.add_argument("--num-processes", type=_positive_int, metavar="N")
@@ -317,10 +312,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         devices = _devices(a.devices)
         compile_cache(a.compile_cache)
         catalog = _catalog()
-        a.declared = {m for n in EXPERIMENTS for m, _, _ in sweeps.get(n).ARMS}
+        a.declared = {m for n in EXPERIMENTS for m, _, _ in experiments.get(n).ARMS}
         plans = []
         for name in names:
-            own_prior = getattr(sweeps.get(name), "PRIOR", None)
+            own_prior = getattr(experiments.get(name), "PRIOR", None)
             if a.problems and own_prior:
                 _say(
                     f"{name}: runs the catalogue problems with the {own_prior} prior; "

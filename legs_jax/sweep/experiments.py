@@ -1,6 +1,6 @@
-"""From an experiment declaration (``sweeps/``) and the command line to a plan:
-the arms to run, the objects and their problem files (catalogue, the user's files,
-or synthetic ones for --smoke)."""
+"""From an experiment declaration (``experiments/<name>/sweep.py``) and the command
+line to a plan: the arms to run, the objects and their problem files (catalogue, the
+user's files, or synthetic ones for --smoke)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import sweeps
+import experiments
 from legs_jax import results as res
 from legs_jax.sweep.plan import (
     SMOKE,
@@ -178,7 +178,7 @@ def _experiment_plan(
     name: str, a: argparse.Namespace, catalog, out: Path
 ) -> ExperimentPlan | None:
 
-    mod = sweeps.get(name)
+    mod = experiments.get(name)
     arms = _arms(mod.ARMS, a.methods, a.grid, getattr(a, "declared", set()))
     if not arms:
         return None

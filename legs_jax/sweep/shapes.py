@@ -152,19 +152,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     p.add_argument("--devices", type=int, default=2, help="CPU devices (default 2)")
     a = p.parse_args(argv)
-    import sweeps
-    from legs_jax.sweep import cli, experiments
+    import experiments as declared
+    from legs_jax.sweep import cli
+    from legs_jax.sweep import experiments as planning
 
     parser = cli.build_parser()
     args = parser.parse_args(["--all", "--dry-run"])
     cli._validate_args(parser, args)
-    catalog = experiments._catalog()
-    args.declared = {m for n in sweeps.EXPERIMENTS for m, _, _ in sweeps.get(n).ARMS}
+    catalog = planning._catalog()
+    args.declared = {
+        m for n in declared.EXPERIMENTS for m, _, _ in declared.get(n).ARMS
+    }
 
     def make_plans():
         out = []
-        for name in sweeps.EXPERIMENTS:
-            plan = experiments._experiment_plan(name, args, catalog, Path("results"))
+        for name in declared.EXPERIMENTS:
+            plan = planning._experiment_plan(name, args, catalog, Path("results"))
             if plan is not None:
                 out.append(plan)
         return out

@@ -6,10 +6,11 @@ differs (``PRIOR``: they are built with ``--prior synthetic`` into the problems
 folder's ``prior-synthetic`` subfolder).
 """
 
-from sweeps import main as _main
+from experiments.main import sweep as _main
 
 NAME = "prior_synthetic"
 DESCRIPTION = "Table I on the Dex-Net objects with the synthetic prior"
+ORDER = 6  # place in --all, the figures and the report
 
 OBJECTS = ("dexnet_adv",)
 # Table I's arms of main (not its extra variant and rows: the comparison is of

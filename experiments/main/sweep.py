@@ -10,6 +10,7 @@ methods' own steps and only LEGS's are analysed).
 
 NAME = "main"
 DESCRIPTION = "Table I: all methods, all objects, final optimality gap"
+ORDER = 1  # place in --all, the figures and the report
 
 # Object set names (``dexnet_adv``, ``egad_eval``) or object names.
 OBJECTS = ("dexnet_adv", "egad_eval")
@@ -29,13 +30,13 @@ ARMS = (
     ("bayes_ucb_2000", "", {}),
 )
 
-# Dirichlet checks of LEGS only (sweeps.DEFAULTS holds the rest).
+# Dirichlet checks of LEGS only (experiments.DEFAULTS holds the rest).
 CHECK_METHODS = ("legs",)
 
 # Objects used by --smoke (synthetic problems carrying these names).
 SMOKE_OBJECTS = ("bar_clamp", "A0")
 
-# ---------------------------------------------------------------- its analysis
+# ------------------------------------------- how its arms are ordered and labelled
 # Table I's column order in the paper; other methods in the results (extra rows
 # such as Bayes-UCB, or a user's method) follow in registry order.
 TABLE_ORDER = (
@@ -56,30 +57,4 @@ VARIANTS = {
         short_label="BORGES-2000 (s=5, offset 0)",
         style=dict(color="#98df8a", ls="-.", lw=1.6),
     ),
-}
-# Table I of the paper: optimality gap at H = 3000, mean and SE across objects.
-PAPER_TABLE1 = {
-    "dexnet_adv": {
-        "dexnet": (0.56, 0.07),
-        "tql": (0.23, 0.08),
-        "borges_100": (0.13, 0.07),
-        "k100_ub": (0.08, 0.04),
-        "borges_2000": (0.04, 0.03),
-        "legs_no_as": (0.22, 0.06),
-        "legs": (0.04, 0.03),
-    },
-    "egad_eval": {
-        "dexnet": (0.59, 0.03),
-        "tql": (0.32, 0.04),
-        "borges_100": (0.25, 0.04),
-        "k100_ub": (0.13, 0.03),
-        "borges_2000": (0.17, 0.03),
-        "legs_no_as": (0.28, 0.04),
-        "legs": (0.14, 0.03),
-    },
-}
-# Win counts stated in the paper (Section 5.3): (wins, objects).
-PAPER_WINS = {
-    "dexnet_adv": {"legs": (10, 14), "borges_2000": (5, 14)},
-    "egad_eval": {"legs": (25, 39), "borges_2000": (14, 39)},
 }

@@ -6,6 +6,7 @@ as one batch axis. Paper: s = 1 is best (0.125 +- 0.036).
 
 NAME = "prior_strength"
 DESCRIPTION = "Appendix: LEGS on bar_clamp, s in 0..5, delta = 0.07"
+ORDER = 4  # place in --all, the figures and the report
 
 OBJECTS = ("bar_clamp",)
 

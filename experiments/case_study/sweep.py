@@ -6,10 +6,11 @@ LEGS (trial 0, rollout 0 of each object) is recorded at every check, and the
 ground-truth robustness of trial 0's reservoir is saved for the histogram.
 """
 
-from sweeps import main
+from experiments.main import sweep as main
 
 NAME = "case_study"
 DESCRIPTION = "Fig. 3: learning curves, robustness histograms, LEGS active sets"
+ORDER = 2  # place in --all, the figures and the report
 
 OBJECTS = ("climbing_hold", "C3", "F6", "turbine_housing")
 

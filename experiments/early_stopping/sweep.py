@@ -9,6 +9,7 @@ sensitivity are computed from checks.parquet.
 
 NAME = "early_stopping"
 DESCRIPTION = "Sec. 5.4 / Fig. 4: accuracy and tightness of the stopping bound"
+ORDER = 3  # place in --all, the figures and the report
 
 OBJECTS = ("dexnet_adv",)
 

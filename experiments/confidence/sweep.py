@@ -6,6 +6,7 @@ axis. Paper: delta = 0.05 is best (0.103 +- 0.031).
 
 NAME = "confidence"
 DESCRIPTION = "Appendix: LEGS on bar_clamp, delta in 0.01..0.25, s = 1"
+ORDER = 5  # place in --all, the figures and the report
 
 OBJECTS = ("bar_clamp",)
 

@@ -1,0 +1,1 @@
+"""The ``case_study`` experiment: its declaration (``sweep.py``) and analysis."""

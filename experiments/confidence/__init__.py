@@ -1,0 +1,1 @@
+"""The ``confidence`` experiment: its declaration (``sweep.py``) and analysis."""

@@ -1,0 +1,1 @@
+"""The ``early_stopping`` experiment: its declaration (``sweep.py``) and analysis."""

@@ -1,0 +1,348 @@
+"""What the ``early_stopping`` experiment makes: Fig. 4 (accuracy and stopping step
+against the threshold), its tables, and the report's section on the stopping bound.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from experiments.early_stopping.sweep import CHECK_METHODS, RHO_MIN
+from legs_jax import analysis as an
+from legs_jax.figures import MissingResults, Results, Run, _plt, _save, _write_csv
+from legs_jax.report import Cell, Num, Table, _pct, to_markdown, write_pair
+
+# Section 5.4: accuracy and tightness of the stopping bound on the Dex-Net set.
+PAPER_EARLY_STOPPING = {"accuracy": 0.958, "tightness": 0.0297}
+
+
+_BOUND_LABEL = {
+    "all": "p̂* over all candidates (paper's formula)",
+    "attempted": "p̂* over attempted grasps only (variant)",
+}
+
+
+def early_stopping_table(summary: pd.DataFrame) -> Table:
+    """Accuracy and tightness of the stopping bound beside the paper's numbers."""
+    rows = []
+    for _, r in summary.iterrows():
+        paper = r["bound"] == "all"
+        rows.append(
+            [
+                _BOUND_LABEL.get(r["bound"], r["bound"]),
+                str(int(r["n_checks"])),
+                Num(r["accuracy"], digits=1, percent=True),
+                Num(PAPER_EARLY_STOPPING["accuracy"], digits=1, percent=True)
+                if paper
+                else "—",
+                Num(r["tightness"], digits=2, percent=True),
+                Num(PAPER_EARLY_STOPPING["tightness"], digits=2, percent=True)
+                if paper
+                else "—",
+            ]
+        )
+    notes = [
+        "Accuracy: fraction of checks (every 100 steps) whose 95 % lower bound "
+        "p̂_ℓ is at most the true performance Σ_s λ_s p[s, π_t(s)]. Tightness: mean "
+        "of (true performance − p̂_ℓ) over the checks. Pooled over every check of "
+        "every run of the Dex-Net set.",
+        "The paper reports the first bound only.",
+    ]
+    return Table(
+        ["Lower bound", "checks", "accuracy", "paper", "tightness", "paper"],
+        rows,
+        "lrcccc",
+        caption="Early stopping: accuracy and tightness of the lower bound",
+        label="tab:early-stopping",
+        notes=notes,
+    )
+
+
+def early_stopping_per_object_table(per_obj: pd.DataFrame) -> Table:
+    """Accuracy and tightness per object, one column pair per bound."""
+    bounds = list(dict.fromkeys(per_obj["bound"]))
+    header = ["Object"]
+    for b in bounds:
+        tag = "all" if b == "all" else "attempted"
+        header += [f"accuracy ({tag})", f"tightness ({tag})"]
+    rows = []
+    for o in dict.fromkeys(per_obj["object"]):
+        row: list[Cell] = [o]
+        for b in bounds:
+            d = per_obj[(per_obj["object"] == o) & (per_obj["bound"] == b)]
+            if len(d):
+                row.append(Num(float(d["accuracy"].iloc[0]), digits=1, percent=True))
+                row.append(Num(float(d["tightness"].iloc[0]), digits=2, percent=True))
+            else:
+                row += ["—", "—"]
+        rows.append(row)
+    return Table(
+        header,
+        rows,
+        "l" + "c" * (len(header) - 1),
+        caption="Early stopping per object",
+        label="tab:early-stopping-objects",
+        notes=[
+            "all: p̂* over all candidates (paper's formula); attempted: over "
+            "attempted grasps only."
+        ],
+    )
+
+
+def sensitivity_table(sens: pd.DataFrame) -> Table:
+    """Fig. 4 numbers: per rho_min and bound, accuracy, stopped runs, steps."""
+    bounds = list(dict.fromkeys(sens["bound"]))
+    header = ["ρ_min"]
+    for b in bounds:
+        tag = "all" if b == "all" else "attempted"
+        header += [
+            f"accuracy ({tag})",
+            f"runs stopped ({tag})",
+            f"mean steps ({tag})",
+        ]
+    rows = []
+    for rho in sorted(set(sens["rho_min"])):
+        row: list[Cell] = [f"{rho:.2f}"]
+        for b in bounds:
+            d = sens[(sens["bound"] == b) & np.isclose(sens["rho_min"], rho)]
+            r = d.iloc[0]
+            row.append(Num(float(r["accuracy"]), digits=1, percent=True))
+            row.append(Num(float(r["frac_stopped"]), digits=1, percent=True))
+            row.append(Num(float(r["mean_stop_step"]), digits=0))
+        rows.append(row)
+    return Table(
+        header,
+        rows,
+        "c" * len(header),
+        caption="Early-stopping sensitivity to ρ_min (Fig. 4)",
+        label="tab:sensitivity",
+        notes=[
+            "A run stops at its first check with p̂_ℓ ≥ ρ_min. Accuracy: fraction "
+            "of stopped runs whose true performance at that check is ≥ ρ_min "
+            "(n/a when none stopped). Mean steps: over all runs, H for a run that "
+            "never stops."
+        ],
+    )
+
+
+def _early_stopping_checks(res: Results) -> tuple[pd.DataFrame, str, int]:
+    """LEGS checks on the Dex-Net set: the early_stopping experiment, else the
+    LEGS rows of main restricted to that set."""
+    if res.has("early_stopping", "checks"):
+        exp = "early_stopping"
+        checks = res.table(exp, "checks")
+    elif res.has("main", "checks"):
+        exp = "main"
+        checks = res.table(exp, "checks")
+        if "set" in checks.columns and (checks["set"] == "dexnet_adv").any():
+            checks = checks[checks["set"] == "dexnet_adv"]
+    else:
+        raise MissingResults(
+            f"{res.path('early_stopping', 'checks')} is missing, and so is "
+            f"{res.path('main', 'checks')} to fall back on (run `python -m "
+            "legs_jax.sweep --experiment early_stopping`)"
+        )
+    checks = an.select_arm(checks, CHECK_METHODS[0], "")
+    if checks.empty:
+        raise MissingResults(f"{res.path(exp, 'checks')} has no LEGS checks")
+    return checks, exp, res.horizon(exp)
+
+
+def early_stopping_figure(res: Results, out: Path) -> tuple[Path, dict[str, Any]]:
+    """Fig. 4: accuracy and mean stopping step against rho_min, for both lower
+    bounds, with the overall accuracy and tightness beside the paper's."""
+    checks, exp, horizon = _early_stopping_checks(res)
+    rho = res.manifest(exp).get("extra", {}).get("rho_min") or RHO_MIN
+    summary = an.bound_summary(checks)
+    per_obj = an.bound_summary(checks, by_object=True)
+    sens = an.stopping_sensitivity(checks, rho, horizon)
+    plt = _plt()
+    fig, axes = plt.subplots(1, 3, figsize=(12.5, 4.3))
+    fig.subplots_adjust(left=0.06, right=0.99, top=0.78, bottom=0.27, wspace=0.3)
+    styles = {
+        "all": dict(color="#d62728", marker="o", ls="-"),
+        "attempted": dict(color="#1f77b4", marker="s", ls="--"),
+    }
+    labels = {
+        "all": r"$\hat p^*$ over all candidates (paper's bound)",
+        "attempted": r"$\hat p^*$ over attempted grasps (variant)",
+    }
+    few = 10  # accuracy over fewer stopped runs than this is drawn hollow
+    for b, g in sens.groupby("bound", sort=False):
+        st = styles.get(b, {})
+        kw = dict(ms=4, lw=1.5, label=labels.get(b, b), **st)
+        axes[0].plot(g["rho_min"], 100 * g["accuracy"], **kw)
+        thin = g[(g["n_stopped"] > 0) & (g["n_stopped"] < few)]
+        axes[0].plot(
+            thin["rho_min"],
+            100 * thin["accuracy"],
+            ls="none",
+            marker=st.get("marker", "o"),
+            ms=6,
+            mfc="white",
+            mec=st.get("color"),
+        )
+        axes[1].plot(g["rho_min"], g["mean_stop_step"], **kw)
+        axes[2].plot(g["rho_min"], 100 * g["frac_stopped"], **kw)
+    axes[0].axhline(
+        95, color="#777777", lw=1.2, ls="-.", label=r"$1-\delta_{stop}$ = 95 %"
+    )
+    if (sens["n_stopped"].between(1, few - 1)).any():
+        axes[0].plot(
+            [], [], ls="none", marker="o", mfc="white", mec="#555555",
+            label=f"fewer than {few} runs stopped",
+        )  # fmt: skip
+    axes[0].set_ylabel("accuracy of stopped runs (%)")
+    axes[0].set_title(r"true performance $\geq \rho_{min}$ when stopped")
+    acc = 100 * sens["accuracy"].to_numpy(float)
+    lo = float(np.nanmin(acc)) if np.isfinite(acc).any() else 90.0
+    axes[0].set_ylim(min(90.0, math.floor((lo - 1.0) / 5) * 5), 101)
+    axes[1].axhline(
+        horizon, color="#777777", lw=1.2, ls=":", label=f"horizon H = {horizon}"
+    )
+    axes[1].set_ylabel("mean steps before stopping")
+    axes[1].set_title("exploration before stopping")
+    axes[1].set_ylim(0, horizon * 1.05)
+    axes[2].set_ylabel("runs stopped before H (%)")
+    axes[2].set_title("runs that reach the threshold")
+    axes[2].set_ylim(-2, 102)
+    for ax in axes:
+        ax.set_xlabel(r"stopping threshold $\rho_{min}$")
+        ax.set_xlim(0, 1)
+        ax.grid(alpha=0.25)
+    h0, l0 = axes[0].get_legend_handles_labels()
+    h1, l1 = axes[1].get_legend_handles_labels()
+    fig.legend(
+        h0 + h1[-1:],
+        l0 + l1[-1:],
+        loc="upper center",
+        ncol=3,
+        frameon=False,
+        bbox_to_anchor=(0.5, 0.99),
+    )
+    lines = []
+    paper = PAPER_EARLY_STOPPING
+    check_steps = np.unique(checks["step"].to_numpy(np.int64))
+    every = int(np.diff(check_steps).min()) if len(check_steps) > 1 else check_steps[0]
+    n_obj = checks["object"].nunique()
+    for _, r in summary.iterrows():
+        tag = "paper's bound" if r["bound"] == "all" else "variant (attempted)"
+        text = (
+            f"{tag}: accuracy {100 * r['accuracy']:.1f} %, "
+            f"tightness {100 * r['tightness']:.2f} %"
+        )
+        if r["bound"] == "all":
+            text += (
+                f"   (paper: {100 * paper['accuracy']:.1f} % and "
+                f"{100 * paper['tightness']:.2f} %)"
+            )
+        lines.append(text)
+    lines.append(
+        f"Overall over {int(summary['n_checks'].max())} checks "
+        f"(every {every} steps) of "
+        f"{sens['n_runs'].max()} LEGS runs on {n_obj} objects; "
+        "prior: synthetic stand-in for GQ-CNN."
+    )
+    fig.text(0.5, 0.02, "\n".join(lines), ha="center", va="bottom", fontsize=8.5)
+    info = dict(
+        experiment=exp,
+        summary=summary,
+        per_object=per_obj,
+        sensitivity=sens,
+        horizon=horizon,
+        n_objects=n_obj,
+    )
+    return _save(fig, out / "fig4_early_stopping.png"), info
+
+
+def early_stopping_tables(info: dict[str, Any], out: Path) -> list[Path]:
+    files = []
+    files += write_pair("early_stopping", early_stopping_table(info["summary"]), out)
+    files += write_pair(
+        "early_stopping_per_object",
+        early_stopping_per_object_table(info["per_object"]),
+        out,
+    )
+    files += write_pair("sensitivity", sensitivity_table(info["sensitivity"]), out)
+    files.append(_write_csv(info["sensitivity"], out / "sensitivity.csv"))
+    return files
+
+
+# ====================================================================== steps
+def _figure_step(run: Run) -> None:
+    path, info = early_stopping_figure(run.res, run.figures)
+    run.ctx["early_stopping"] = info
+    run.written.append(path)
+    run.written.extend(early_stopping_tables(info, run.tables))
+
+
+STEPS = (("Fig. 4 early stopping", _figure_step),)
+
+
+# ==================================================================== report
+def _section(ctx: Mapping) -> list[str]:
+    L = ["## Early stopping (Section 5.4, Fig. 4)", ""]
+    es = ctx.get("early_stopping")
+    if es:
+        L.append(to_markdown(early_stopping_table(es["summary"])))
+        L += [
+            "![Fig. 4: early-stopping accuracy and steps against the "
+            "threshold](figures/fig4_early_stopping.png)",
+            "",
+        ]
+        s = es["summary"].set_index("bound")
+        sens = es["sensitivity"]
+        if "all" in s.index:
+            acc, tight = (
+                float(s.loc["all", "accuracy"]),
+                float(s.loc["all", "tightness"]),
+            )
+            p = PAPER_EARLY_STOPPING
+            L.append(
+                f"- The paper's bound is a valid lower bound at {_pct(acc)} of the "
+                f"checks (paper {_pct(p['accuracy'])}; target 95 %), "
+                f"{'above' if acc >= 0.95 else 'below'} the nominal 95 %; it lies "
+                f"{_pct(abs(tight), 2)} {'below' if tight >= 0 else 'above'} the "
+                "true performance on average (paper "
+                f"{_pct(p['tightness'], 2)} below)."
+            )
+        if "attempted" in s.index:
+            L.append(
+                "- Over attempted grasps only, accuracy is "
+                f"{_pct(float(s.loc['attempted', 'accuracy']))} and tightness "
+                f"{_pct(float(s.loc['attempted', 'tightness']), 2)}: untried grasps "
+                "no longer count at their prior mean."
+            )
+        a = sens[sens["bound"] == "all"]
+        if len(a):
+            ok = a[a["n_stopped"] > 0]
+            if len(ok):
+                worst = ok.loc[ok["accuracy"].idxmin()]
+                L.append(
+                    f"- Across ρ_min from {a['rho_min'].min():.2f} to "
+                    f"{a['rho_min'].max():.2f}, the accuracy of stopped runs ranges "
+                    f"from {_pct(float(ok['accuracy'].min()))} (at ρ_min = "
+                    f"{worst['rho_min']:.2f}, {int(worst['n_stopped'])} of "
+                    f"{int(worst['n_runs'])} runs stopped) to "
+                    f"{_pct(float(ok['accuracy'].max()))}; "
+                    f"the mean stopping step rises from {a['mean_stop_step'].min():.0f}"
+                    f" to {a['mean_stop_step'].max():.0f} of H = {es['horizon']}."
+                )
+        L += [
+            "",
+            "Per-object numbers: [`tables/early_stopping_per_object.md`]"
+            "(tables/early_stopping_per_object.md); the curve values: "
+            "[`tables/sensitivity.md`](tables/sensitivity.md).",
+            "",
+        ]
+    else:
+        L += ["_Not available: the early-stopping results are missing._", ""]
+    return L
+
+
+SECTIONS = ((40, _section),)

@@ -1,0 +1,1 @@
+"""The ``main`` experiment: its declaration (``sweep.py``) and analysis."""

@@ -1,0 +1,1 @@
+"""The ``prior_strength`` experiment: its declaration (``sweep.py``) and analysis."""

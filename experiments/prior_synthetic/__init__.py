@@ -1,0 +1,1 @@
+"""The ``prior_synthetic`` experiment: its declaration (``sweep.py``)."""
