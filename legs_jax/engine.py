@@ -28,8 +28,7 @@ from __future__ import annotations
 import functools
 import math
 import numbers
-import time
-from collections import Counter, OrderedDict
+from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, NamedTuple
 
@@ -37,9 +36,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from legs_jax import _programs, sampling
 from legs_jax import keys as keys_mod
 from legs_jax import methods as methods_mod
-from legs_jax import sampling
 from legs_jax.errors import ConfigError
 from legs_jax.methods.base import TOP_FIXED, Config, Ctx, Method, Tables
 from legs_jax.problem import ProblemBatch
@@ -619,14 +618,27 @@ def compiled(
         )(ks, hp)
     if raw_keys:
         fn = _wrapping_keys(fn, 2)
-    return _jit_rows(fn, devices, (None, "b", "b", "b"), grid)
+    m = methods_mod.resolve(method)
+    return _programs.describe(
+        _jit_rows(fn, devices, (None, "b", "b", "b"), grid),
+        "simulate",
+        _programs.method_fingerprint(m),
+        cfg, horizon, record_every, check_every, attempted_variant,
+        record_active_set, trajectory, grid, dirichlet, raw_keys,
+        _programs.devices_fingerprint(devices),
+    )  # fmt: skip
 
 
 @functools.lru_cache(maxsize=8)
 def compiled_checks(devices: tuple | None = None, raw_keys: bool = False) -> Callable:
     """The jitted :func:`dirichlet_checks` (one program for every method)."""
     fn = _wrapping_keys(dirichlet_checks, 0) if raw_keys else dirichlet_checks
-    return _jit_rows(fn, devices, ("b", "b"), False)
+    return _programs.describe(
+        _jit_rows(fn, devices, ("b", "b"), False),
+        "dirichlet_checks",
+        raw_keys,
+        _programs.devices_fingerprint(devices),
+    )
 
 
 def _wrapping_keys(fn: Callable, at: int) -> Callable:
@@ -640,34 +652,10 @@ def _wrapping_keys(fn: Callable, at: int) -> Callable:
     return wrapped
 
 
-# Compiled executables of :func:`run` (ahead of time, so that compilation, or its
-# load from the persistent cache, is timed apart from running).
-_EXECUTABLES: OrderedDict = OrderedDict()
-_MAX_EXECUTABLES = 64
-_COMPILE_SECONDS = [0.0]
-
-
 def compile_seconds() -> float:
     """Seconds this process has spent tracing, lowering and compiling (or loading
-    from the persistent compilation cache) the programs of :func:`run`."""
-    return _COMPILE_SECONDS[0]
-
-
-def _call(fn: Callable, *args):
-    """``fn(*args)`` through an executable compiled once per argument shape."""
-    leaves, tree = jax.tree_util.tree_flatten(args)
-    key = (fn, tree, tuple((x.shape, x.dtype, x.sharding) for x in leaves))
-    exe = _EXECUTABLES.get(key)
-    if exe is None:
-        t0 = time.perf_counter()
-        exe = fn.lower(*args).compile()
-        _COMPILE_SECONDS[0] += time.perf_counter() - t0
-        _EXECUTABLES[key] = exe
-        while len(_EXECUTABLES) > _MAX_EXECUTABLES:
-            _EXECUTABLES.popitem(last=False)
-    else:
-        _EXECUTABLES.move_to_end(key)
-    return exe(*args)
+    from the caches) the programs of :func:`run`."""
+    return _programs.compile_seconds()
 
 
 def _jit_rows(fn: Callable, devices, in_axes, grid: bool) -> Callable:
@@ -889,9 +877,9 @@ def run(
                 args = jax.device_put(args, row_sharding)
             else:
                 args = jax.device_put(args, devices[0])
-            out = _call(fn, put_tables, *args)
+            out = _programs.call(fn, put_tables, *args)
             if checks_fn is not None:
-                out = _call(checks_fn, args[1], out)
+                out = _programs.call(checks_fn, args[1], out)
             pending.append((idx, out))
             if len(pending) > 1:
                 done += _collect(pending.pop(0), store, gap_cols, curve_steps, H)

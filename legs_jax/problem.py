@@ -275,7 +275,10 @@ def prior_kind(meta: dict[str, Any]) -> str:
     kind = meta.get("prior_kind")
     if kind:
         return str(kind)
-    return "synthetic" if isinstance(meta.get("prior"), dict) else "unknown"
+    prior = meta.get("prior")
+    if isinstance(prior, str) and prior in ("learned", "synthetic"):
+        return prior
+    return "synthetic" if isinstance(prior, dict) else "unknown"
 
 
 def peek(path: str | os.PathLike) -> dict[str, Any]:

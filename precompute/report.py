@@ -51,12 +51,10 @@ def _fmt_list(values, digits: int) -> str:
 
 
 def prior_kind(pb) -> str:
-    """The prior a problem file carries: "learned" or "synthetic"."""
-    kind = pb.meta.get("prior_kind")
-    if kind is None:  # files from before the learned prior, and test fakes
-        prior = pb.meta.get("prior")
-        kind = "synthetic" if prior == "synthetic" or isinstance(prior, dict) else "?"
-    return str(kind)
+    """The prior a problem file carries (:func:`legs_jax.problem.prior_kind`)."""
+    from legs_jax.problem import prior_kind as of_meta
+
+    return of_meta(pb.meta)
 
 
 def roc_auc(score: np.ndarray, positive: np.ndarray) -> float:

@@ -10,6 +10,7 @@ import pandas as pd
 import pytest
 from results_fixture import make_results
 
+import experiments
 from legs_jax import analysis as an
 
 
@@ -58,7 +59,8 @@ def test_table_one_matches_plain_aggregation(main_runs):
     per_set: dict = {}
     for (o, m, v), (mean, _, _) in plain.items():
         per_set.setdefault((set_of[o], m, v), []).append(mean)
-    assert len(t1) == len(per_set) == 2 * 8
+    n_arms = len(experiments.get("main").ARMS)
+    assert len(t1) == len(per_set) == 2 * n_arms
     for r in t1.itertuples():
         vals = np.array(per_set[(r.set, r.method, r.variant)])
         assert r.n_objects == len(vals)
@@ -276,7 +278,7 @@ def test_learning_curves_order_and_arms(results):
     lc = an.learning_curves(curves, "F6")
     arms = list(dict.fromkeys(zip(lc["method"], lc["variant"], strict=True)))
     assert [m for m, _ in arms] == [m for m in an.METHODS if m in set(curves.method)]
-    assert len(arms) == 7
+    assert len(arms) == len(experiments.get("case_study").ARMS)
     for _, g in lc.groupby(["method", "variant"]):
         assert np.all(np.diff(g["step"].to_numpy()) > 0)
 

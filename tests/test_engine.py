@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from legs_jax import engine, keys
+from legs_jax import _programs, engine, keys
 from legs_jax import reference as ref
 from legs_jax.errors import ConfigError
 from legs_jax.problem import Problem, stack
@@ -168,6 +168,53 @@ _DEVICE_SCRIPT = textwrap.dedent(
 )
 
 
+_KEPT_SCRIPT = textwrap.dedent(
+    """
+    import json, sys, jax, numpy as np
+    from legs_jax import engine
+    from legs_jax._jax_cache import compile_cache
+    from legs_jax.problem import stack
+    from legs_jax.synthetic import make_problem
+    if sys.argv[1] != "off":
+        compile_cache(sys.argv[1])
+    batch = stack([make_problem(4, num_poses=3, num_grasps=150, num_trials=2)])
+    out = {}
+    for method in ("legs", "borges_2000"):
+        r = engine.run(batch, method, object_ids=[7], num_rollouts=3, horizon=150,
+                       check_every=50, progress=False)
+        out[method] = {f: np.asarray(getattr(r, f)).tolist()
+                       for f in ("final_gap", "gap_curve", "check_p_lower")}
+    print(json.dumps({"results": out, "traces": len(engine.trace_counts())}))
+    """
+)
+
+
+def test_programs_kept_on_disk_give_the_same_numbers(tmp_path):
+    """With the compilation cache on, the engine runs each program as exported
+    (traced once, kept on disk): its numbers equal the plain jitted program's, and
+    a second process loads the program instead of tracing the method again."""
+
+    def run(cache):
+        proc = subprocess.run(
+            [sys.executable, "-c", _KEPT_SCRIPT, cache],
+            capture_output=True,
+            text=True,
+            timeout=600,
+            env={**os.environ, "JAX_PLATFORMS": "cpu"},
+        )
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        return json.loads(proc.stdout.strip().splitlines()[-1])
+
+    plain = run("off")
+    first = run(str(tmp_path / "cache"))
+    second = run(str(tmp_path / "cache"))
+    assert first["results"] == plain["results"] == second["results"]
+    assert plain["traces"] > 0 and first["traces"] > 0
+    assert second["traces"] == 0  # loaded, not traced
+    kept = list((tmp_path / "cache" / "legs_jax-exported").glob("*.bin"))
+    assert len(kept) >= 3  # two methods' rollouts and the Dirichlet checks
+
+
 @pytest.mark.parametrize("method", ["legs", "borges_2000", "tql"])
 def test_shape_buckets_are_bit_identical(method):
     """A sweep pads a chunk's poses to its bucket and its tables and mini-batches
@@ -194,7 +241,7 @@ def test_shape_buckets_are_bit_identical(method):
         np.testing.assert_array_equal(x, getattr(padded, f), err_msg=f)
     # the padded run really ran on padded tables: 16 (object, trial) rows of 8
     # poses (the plain one on 4 rows of 5)
-    shapes = {a[0] for k in engine._EXECUTABLES for a in k[2]}
+    shapes = {a[0] for k in _programs._EXECUTABLES for a in k[2]}
     assert (16, 8, 150) in shapes and (4, 5, 150) in shapes
 
 

@@ -26,6 +26,8 @@ TABLES = [
     "sensitivity",
     "prior_strength",
     "confidence",
+    "priors",
+    "prior_quality",
 ]
 FIGURES = ["fig3_case_study.png", "fig4_early_stopping.png", "fig1_active_set.png"]
 
@@ -197,6 +199,37 @@ def test_appendix_tables(world, experiment, param, paper):
         assert f"{x.mean():.3f} ± {se:.3f}" in line
     for text in paper:
         assert text in md
+
+
+def test_prior_comparison_values(world):
+    """The Dex-Net rows of each prior: the learned ones from main's runs, the
+    synthetic ones from prior_synthetic's, each object's mean gap then the mean and
+    standard error across objects; the report's verdict follows from them."""
+    res = world["results"]
+    syn = pd.read_parquet(res / "prior_synthetic" / "runs.parquet")
+    main = pd.read_parquet(res / "main" / "runs.parquet")
+    objects = set(syn["object"])
+    lrn = main[main["object"].isin(objects) & main["method"].isin(set(syn["method"]))]
+    lrn = lrn[lrn["variant"] == ""]
+    csv = pd.read_csv(world["out1"] / "tables" / "priors.csv", keep_default_na=False)
+    for kind, runs in (("learned", lrn), ("synthetic", syn)):
+        per_obj = runs.groupby(["method", "object"])["final_gap"].mean()
+        got = csv[csv["prior"] == kind].set_index("method")
+        assert set(got.index) == set(syn["method"])
+        for method, g in per_obj.groupby(level="method"):
+            v = g.to_numpy(float)
+            assert got.loc[method, "mean"] == pytest.approx(v.mean(), abs=1e-5)
+            se = v.std(ddof=1) / np.sqrt(v.size)
+            assert got.loc[method, "se"] == pytest.approx(se, abs=1e-5)
+    report = (world["out1"] / "REPORT.md").read_text()
+    assert "## The prior: learned network and synthetic stand-in" in report
+    legs = csv[csv["method"] == "legs"].set_index("prior")["mean"]
+    lower = "learned" if legs["learned"] < legs["synthetic"] else "synthetic"
+    assert f"lower with the {lower} prior" in report
+    md = (world["out1"] / "tables" / "priors.md").read_text()
+    assert "0.04 ± 0.03" in md  # the paper's LEGS row beside ours
+    quality = (world["out1"] / "tables" / "prior_quality.md").read_text()
+    assert "85.7 %" in quality  # GQ-CNN's published accuracy
 
 
 def test_report_contents(world):

@@ -398,13 +398,17 @@ def test_switching_a_built_file_to_the_learned_prior_rescores_only(
     folder.mkdir(parents=True)
     trimesh.creation.box((0.03, 0.05, 0.02)).export(folder / "brick.obj")
     small = {"trials": 1, "grasps": 30, "samples": 10}
-    path = precompute.ensure(
-        ["brick"],
-        data_dir=tmp_path,
-        progress=False,
-        jobs=1,
-        params=BuildParams(**small, prior="synthetic"),
-    )["brick"]
+    with monkeypatch.context() as m:
+        # built before the weights were shipped: synthetic was the default
+        m.setattr(learned, "default_prior", lambda: "synthetic")
+        path = precompute.ensure(
+            ["brick"],
+            data_dir=tmp_path,
+            progress=False,
+            jobs=1,
+            params=BuildParams(**small, prior="synthetic"),
+        )["brick"]
+    assert path == tmp_path / "problems" / "dexnet_adv" / "brick.npz"
     before = np.load(path)
     monkeypatch.setattr(learned, "weights_path", lambda: random_weights)
     learned_params = BuildParams(**small, prior="learned")

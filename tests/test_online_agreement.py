@@ -19,7 +19,12 @@ from legs_jax.online import agreement as A
 
 @pytest.fixture(scope="module")
 def clamp():
-    return catalog_problem("bar_clamp", trials=1, grasps=200, samples=50)
+    # The synthetic prior: with the learned one LEGS's first choice on this small
+    # reservoir is already near the best, the gap hardly falls in 150 steps and
+    # the comparison would be vacuous; the agreement is about the loop, not q.
+    return catalog_problem(
+        "bar_clamp", trials=1, grasps=200, samples=50, prior="synthetic"
+    )
 
 
 def _run(pb, rollouts, horizon):

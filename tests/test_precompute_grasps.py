@@ -295,7 +295,11 @@ def test_ensure_builds_once_and_rebuilds_when_the_mesh_changes(tmp_path):
         ["brick"], data_dir=tmp_path, progress=False, jobs=1, params=_small()
     )
     path = paths["brick"]
-    assert path == tmp_path / "problems" / "dexnet_adv" / "brick.npz"
+    # a prior other than the default one (learned, with its weights shipped) is
+    # kept in its own subfolder
+    assert (
+        path == tmp_path / "problems" / "prior-synthetic" / "dexnet_adv" / "brick.npz"
+    )
     first = path.stat().st_mtime_ns
     precompute.ensure(["brick"], data_dir=tmp_path, progress=False, params=_small())
     assert path.stat().st_mtime_ns == first  # up to date: not rebuilt
@@ -310,7 +314,7 @@ def test_ensure_builds_once_and_rebuilds_when_the_mesh_changes(tmp_path):
         ["brick"],
         data_dir=tmp_path,
         progress=False,
-        params=BuildParams(trials=1, grasps=30, samples=10),
+        params=BuildParams(trials=1, grasps=30, samples=10, prior="synthetic"),
     )
     assert read_meta(path)["params"]["grasps"] == 30
     with pytest.raises(precompute.PrecomputeError, match="unknown object 'brik'"):

@@ -395,8 +395,8 @@ def test_cli_runs_and_writes_schema(tmp_path, probs, fake_engine, capsys):
     assert man["compile_s_chunks"] >= 0
     sha = results.sha256_file(probs[0])
     assert man["problem_files"]["alpha"]["sha256"] == sha
-    # synthetic.make_problem records no prior: "unknown"
-    assert man["problem_files"]["alpha"]["prior"] == man["priors"][0] == "unknown"
+    # synthetic.make_problem's q is made from p: the synthetic kind
+    assert man["problem_files"]["alpha"]["prior"] == man["priors"][0] == "synthetic"
     assert man["versions"]["jax"] and man["sessions"][0]["devices"]["count"] >= 1
     assert "commit" in man["git"]
 
