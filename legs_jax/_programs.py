@@ -48,12 +48,12 @@ def compile_seconds() -> float:
     return _COMPILE_SECONDS[0]
 
 
-def describe(fn: Callable, *parts: Any) -> Callable:
-    """Record a stable description of the jitted ``fn`` (its static facts, as
-    text), which lets :func:`call` keep its traced program on disk; returns
-    ``fn``. Pass None among ``parts`` to keep it off disk."""
-    if all(p is not None for p in parts):
-        _DESCRIPTIONS[fn] = repr(parts)
+def describe(fn: Callable, name: str | None, *parts: Any) -> Callable:
+    """Record a stable description of the jitted ``fn`` (a name and its static
+    facts), which lets :func:`call` keep its traced program on disk; returns
+    ``fn``. A name of None keeps it off disk."""
+    if name is not None:
+        _DESCRIPTIONS[fn] = repr((name, *parts))
     return fn
 
 

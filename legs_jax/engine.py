@@ -621,8 +621,8 @@ def compiled(
     m = methods_mod.resolve(method)
     return _programs.describe(
         _jit_rows(fn, devices, (None, "b", "b", "b"), grid),
-        "simulate",
         _programs.method_fingerprint(m),
+        "simulate",
         cfg, horizon, record_every, check_every, attempted_variant,
         record_active_set, trajectory, grid, dirichlet, raw_keys,
         _programs.devices_fingerprint(devices),
