@@ -8,7 +8,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any
 
-__all__ = ["atomic_write", "public_mode"]
+__all__ = ["atomic_write", "git_state", "public_mode"]
 
 
 def atomic_write(
@@ -42,3 +42,29 @@ def public_mode(path: str | os.PathLike) -> None:
     umask = os.umask(0)
     os.umask(umask)
     os.chmod(path, 0o666 & ~umask)
+
+
+def git_state() -> dict[str, Any]:
+    """The commit of this checkout (``commit``, None outside git) and whether
+    tracked files other than ``results/`` (which runs rewrite) differ from it
+    (``dirty``)."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+
+    def git(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run(
+            ["git", *args], cwd=root, capture_output=True, text=True, timeout=10
+        )
+
+    try:
+        head = git("rev-parse", "HEAD")
+        if head.returncode != 0:
+            return {"commit": None}
+        status = git(
+            "status", "--porcelain", "--untracked-files=no", "--", ".",
+            ":(exclude)results",
+        )  # fmt: skip
+        return {"commit": head.stdout.strip(), "dirty": bool(status.stdout.strip())}
+    except (OSError, subprocess.SubprocessError):
+        return {"commit": None}

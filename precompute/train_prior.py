@@ -29,7 +29,6 @@ import dataclasses
 import json
 import os
 import platform
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -359,25 +358,12 @@ def train(cfg: TrainConfig, data: dict, arch=None, progress: bool = True):
 
 
 def _commit() -> str:
-    root = Path(__file__).resolve().parent.parent
-    try:
-        head = subprocess.run(
-            ["git", "rev-parse", "HEAD"],
-            cwd=root,
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=root,
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
-        return head + (" (with uncommitted changes)" if dirty else "")
-    except Exception:  # noqa: BLE001 - not a git checkout
+    from legs_jax._files import git_state
+
+    state = git_state()
+    if state["commit"] is None:
         return "unknown (not a git checkout)"
+    return state["commit"] + (" (with uncommitted changes)" if state["dirty"] else "")
 
 
 def _machine() -> str:

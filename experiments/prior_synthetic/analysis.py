@@ -295,6 +295,32 @@ def _step(run: Run) -> None:
 STEPS = (("Table I with each prior", _step),)
 
 
+def _quality_lines(q: Mapping) -> list[str]:
+    """How the network does on generated objects against the evaluation sets."""
+    gen, sets = q.get("generated"), q.get("sets")
+    if gen is None or sets is None or not len(sets):
+        return []
+    lrn = sets[sets["prior"] == "learned"]
+    if not len(lrn):
+        return []
+    low = lrn.loc[lrn["roc_auc"].idxmin()]
+    auc, name = float(low.roc_auc), an.SET_LABELS.get(low.set, low.set)
+    harder = auc < gen["roc_auc"]
+    verdict = (
+        "the evaluation objects are harder for it than the generated ones, the "
+        "regime LEGS is built for."
+        if harder
+        else "no lower than on generated objects."
+    )
+    text = (
+        f"- On held-out generated objects the network's ROC AUC is "
+        f"{_f(gen['roc_auc'])} (accuracy {_pct(gen['accuracy'])}, GQ-CNN's "
+        f"published {_pct(GQCNN_ACCURACY)}); on the {name} objects it "
+        f"{'falls to' if harder else 'is'} {_f(auc)}: {verdict}"
+    )
+    return [text]
+
+
 # ==================================================================== report
 def _section(ctx: Mapping) -> list[str]:
     L = ["## The prior: learned network and synthetic stand-in", ""]
@@ -314,25 +340,7 @@ def _section(ctx: Mapping) -> list[str]:
         "(precompute/figures/prior_reliability.png)",
         "",
     ]
-    gen = q.get("generated")
-    sets = q.get("sets")
-    if gen is not None and sets is not None and len(sets):
-        lrn = sets[sets["prior"] == "learned"]
-        if len(lrn):
-            worst = lrn.loc[lrn["roc_auc"].idxmin()]
-            L.append(
-                f"- On held-out generated objects the network's ROC AUC is "
-                f"{_f(gen['roc_auc'])} (accuracy {_pct(gen['accuracy'])}, GQ-CNN's "
-                f"published {_pct(GQCNN_ACCURACY)}); on the "
-                f"{an.SET_LABELS.get(worst.set, worst.set)} objects it falls to "
-                f"{_f(float(worst.roc_auc))}: "
-                + (
-                    "the evaluation objects are harder for it than the generated "
-                    "ones, the regime LEGS is built for."
-                    if float(worst.roc_auc) < gen["roc_auc"]
-                    else "no lower than on generated objects."
-                )
-            )
+    L += _quality_lines(q)
     if "learned" in cmp:
         L += ["", to_markdown(comparison_table(cmp))]
     lines = [_gap_line(cmp), *_ranking_line(cmp), _win_line(cmp), _bound_line(cmp)]

@@ -8,7 +8,6 @@ import importlib.metadata
 import os
 import platform
 import shutil
-import subprocess
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -45,35 +44,9 @@ def _portable_path(path: str | os.PathLike) -> str:
 def _git_commit() -> dict[str, Any]:
     """The commit of the code and whether tracked files other than ``results/``
     (which a sweep rewrites) differ from it."""
-    root = Path(__file__).resolve().parents[2]
-    try:
-        commit = subprocess.run(
-            ["git", "rev-parse", "HEAD"],
-            cwd=root,
-            capture_output=True,
-            text=True,
-            timeout=10,
-        )
-        if commit.returncode != 0:
-            return {"commit": None}
-        dirty = subprocess.run(
-            [
-                "git",
-                "status",
-                "--porcelain",
-                "--untracked-files=no",
-                "--",
-                ".",
-                ":(exclude)results",
-            ],
-            cwd=root,
-            capture_output=True,
-            text=True,
-            timeout=10,
-        )
-        return {"commit": commit.stdout.strip(), "dirty": bool(dirty.stdout.strip())}
-    except (OSError, subprocess.SubprocessError):
-        return {"commit": None}
+    from legs_jax._files import git_state
+
+    return git_state()
 
 
 def _object_stamp(o: ObjectEntry) -> tuple[str, int, str]:
