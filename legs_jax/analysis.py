@@ -13,6 +13,7 @@ deviations (ddof = 1) divided by the square root of the count; NaN for one value
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -99,6 +100,26 @@ PROPOSED = _MAIN.PROPOSED  # the method the paper proposes (LEGS)
 BOUNDS = {"all": "p_lower", "attempted": "p_lower_attempted"}
 
 _RUN_KEYS = ["object", "trial", "rollout"]
+
+
+# The prior the problems of a sweep carry (its manifests' "priors"), in words.
+PRIOR_WORDS = {
+    "learned": "learned (a small GQ-CNN-style network trained on generated objects "
+    "only, never on these)",
+    "synthetic": "synthetic (a stand-in for GQ-CNN made from p with seeded noise)",
+}
+
+
+def prior_kind(res: Any, experiment: str = "main") -> str:
+    """The prior of an experiment's problems, from its manifest (``res``: a
+    :class:`legs_jax.figures.Results`): "learned", "synthetic", several joined
+    by "+", or "unknown" (results from before the manifests said)."""
+    kinds = res.manifest(experiment).get("priors") or []
+    return "+".join(kinds) if kinds else "unknown"
+
+
+def prior_words(kind: str) -> str:
+    return PRIOR_WORDS.get(kind, kind)
 
 
 class AnalysisError(ValueError):

@@ -439,6 +439,8 @@ def build_report(ctx: Mapping) -> str:
     """REPORT.md from what ``legs_jax.figures.generate`` computed (``ctx``): the
     results used, then the sections every experiment's ``analysis.py`` declares
     (``SECTIONS``: position, function of ``ctx``), by position."""
+    from legs_jax import analysis as an
+
     L: list[str] = [
         "# Reproduction report: LEGS (Fu et al., ICRA 2022)",
         "",
@@ -446,7 +448,7 @@ def build_report(ctx: Mapping) -> str:
         "`python -m legs_jax.figures` and sits beside the paper's; rerunning that "
         "command regenerates this file, the tables in `tables/` and the figures in "
         "`figures/` without rerunning any experiment. The prior of every method is "
-        "**synthetic** (a calibrated stand-in for GQ-CNN), see the discussion.",
+        f"**{an.prior_words(an.prior_kind(ctx['results']))}**.",
         "",
     ]
     L += _results_section(ctx)

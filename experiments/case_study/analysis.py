@@ -294,7 +294,7 @@ def case_study_figure(
                     histtype="step",
                     color="#dd8452",
                     lw=1.4,
-                    label="prior q (synthetic)",
+                    label=f"prior q ({an.prior_kind(res)})",
                 )
             ax1.set_yscale("log")
             ax1.set_xlim(0, 1)
@@ -342,7 +342,7 @@ def case_study_figure(
         0.5,
         0.005,
         "Curves: mean over T × R runs, band ±1 standard error. "
-        "The prior of every method is synthetic (a stand-in for GQ-CNN). "
+        f"The prior of every method is {an.prior_kind(res)}. "
         "Histogram y axis is logarithmic.",
         ha="center",
         va="bottom",
@@ -495,7 +495,7 @@ def active_set_figure(
             k_text = str(int(ks[0]))
     fig.suptitle(
         f"LEGS active set on {obj} ({_set_label(set_)}), pose {pose}, trial 0, "
-        f"rollout 0 (initial set: top {k_text} by the synthetic prior)",
+        f"rollout 0 (initial set: top {k_text} by the {an.prior_kind(res)} prior)",
         fontsize=10,
     )
     info.update(

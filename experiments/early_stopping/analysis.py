@@ -246,7 +246,7 @@ def early_stopping_figure(res: Results, out: Path) -> tuple[Path, dict[str, Any]
         f"Overall over {int(summary['n_checks'].max())} checks "
         f"(every {every} steps) of "
         f"{sens['n_runs'].max()} LEGS runs on {n_obj} objects; "
-        "prior: synthetic stand-in for GQ-CNN."
+        f"prior: {an.prior_kind(res)}."
     )
     fig.text(0.5, 0.02, "\n".join(lines), ha="center", va="bottom", fontsize=8.5)
     info = dict(

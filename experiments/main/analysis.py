@@ -65,7 +65,9 @@ def _paper_header(set_: str) -> str:
     return f"paper ({PAPER_OBJECTS[set_]} objects)"
 
 
-def table_one_table(t1: pd.DataFrame, horizon: int | None = None) -> Table:
+def table_one_table(
+    t1: pd.DataFrame, horizon: int | None = None, prior: str = "unknown"
+) -> Table:
     """Table I: one row per arm, per set our mean ± SE beside the paper's."""
     sets = an.order_sets(t1["set"])
     arms = an.arms_of(t1)
@@ -82,12 +84,14 @@ def table_one_table(t1: pd.DataFrame, horizon: int | None = None) -> Table:
         if s in PAPER_TABLE1:
             header.append(_paper_header(s))
             align += "c"
-    # Bold the lowest mean of the compared methods (not the oracle row), as the
-    # paper does; ties within 0.005 are all bold.
+    # Bold the lowest mean of the compared methods (the paper's columns, not the
+    # oracle row, not a variant or an extra row), as the paper does; ties within
+    # 0.005 are all bold.
     best = {}
     oracle = an.oracle_methods()
+    compared = t1["method"].isin(an.COMPETITORS) & (t1["variant"] == "")
     for s in sets:
-        d = t1[(t1["set"] == s) & ~t1["method"].isin(oracle)]
+        d = t1[(t1["set"] == s) & compared]
         best[s] = float(d["mean"].min()) if len(d) else math.nan
     rows = []
     for m, v in arms:
@@ -96,7 +100,7 @@ def table_one_table(t1: pd.DataFrame, horizon: int | None = None) -> Table:
             d = t1[(t1["set"] == s) & (t1["method"] == m) & (t1["variant"] == v)]
             if len(d):
                 mean, se = float(d["mean"].iloc[0]), float(d["se"].iloc[0])
-                bold = m not in oracle and mean <= best[s] + 0.005
+                bold = m in an.COMPETITORS and not v and mean <= best[s] + 0.005
                 row.append(Num(mean, se, 3, bold))
             else:
                 row.append("—")
@@ -113,11 +117,12 @@ def table_one_table(t1: pd.DataFrame, horizon: int | None = None) -> Table:
         f"Optimality gap at {_horizon_text(horizon)} (lower is better): per object "
         "the mean over its "
         "T × R runs, then mean ± standard error across the objects of the set.",
-        "The prior of every method is our synthetic stand-in for GQ-CNN, not "
-        "Dex-Net 4.0; the Dex-Net row is greedy on it and the K_s=100 upper bound "
-        "takes the best grasp among its top 100.",
-        "Bold: lowest gap of the compared methods (the upper bound is an oracle row "
-        "and is not compared), ties within 0.005 included.",
+        f"The prior of every method is {an.prior_words(prior)}, not GQ-CNN "
+        "(Dex-Net 4.0); the Dex-Net row is greedy on it and the K_s=100 upper "
+        "bound takes the best grasp among its top 100.",
+        "Bold: lowest gap of the compared methods, the paper's (the upper bound "
+        "is an oracle row; variants and extra rows are shown, not compared), ties "
+        "within 0.005 included.",
     ]
     return Table(
         header,
@@ -172,7 +177,9 @@ def wins_table(wins: pd.DataFrame) -> Table:
     )
 
 
-def per_object_table(gaps: pd.DataFrame, win: pd.DataFrame) -> Table:
+def per_object_table(
+    gaps: pd.DataFrame, win: pd.DataFrame, prior: str = "unknown"
+) -> Table:
     """Final gap of every arm on every object (mean ± SE over its runs)."""
     arms = an.arms_of(gaps)
     short = {
@@ -203,7 +210,7 @@ def per_object_table(gaps: pd.DataFrame, win: pd.DataFrame) -> Table:
         "Mean ± standard error of the final gap over each object's T × R runs. "
         "Bold: the object's winners (mean final gap at most every other compared "
         f"method's + {an.WIN_TOLERANCE}).",
-        "*Dex-Net: greedy on the synthetic prior (no online learning).",
+        f"*Dex-Net: greedy on the {prior} prior (no online learning).",
     ]
     return Table(
         header,
@@ -283,6 +290,33 @@ def _table_one_sentences(main: Mapping) -> list[str]:
                     + "."
                 )
             out.append(line)
+        out += _extra_row_lines(d, comp)
+    return out
+
+
+def _extra_row_lines(d: pd.DataFrame, comp: pd.DataFrame) -> list[str]:
+    """Each extra row (a default arm that is neither compared nor an oracle row)
+    against the lowest compared row of the set, and whether the difference is
+    within the combined standard error."""
+    if not len(comp):
+        return []
+    low = comp.loc[comp["mean"].idxmin()]
+    extra = d[
+        ~d["method"].isin(an.COMPETITORS)
+        & ~d["method"].isin(an.oracle_methods())
+        & (d["variant"] == "")
+    ]
+    out = []
+    for r in extra.itertuples():
+        diff = float(r.mean) - float(low["mean"])
+        se = math.hypot(float(r.se), float(low["se"]))
+        out.append(
+            f"  Extra row {an.arm_label(r.method)}: {_f(float(r.mean))} ± "
+            f"{_f(float(r.se))}, {'below' if diff < 0 else 'above'} the lowest "
+            f"compared row ({an.arm_label(low['method'])}) by {_f(abs(diff))}, "
+            f"{'within' if abs(diff) <= se else 'outside'} the combined standard "
+            "error."
+        )
     return out
 
 
@@ -527,7 +561,8 @@ def _discussion(ctx: Mapping) -> list[str]:
         "the algorithms' code.",
         "",
     ]
-    L += ["### Synthetic prior", ""]
+    prior = main.get("prior", "unknown") if main else "unknown"
+    L += ["### The prior", ""]
     if main:
         rows = []
         for s in an.order_sets(t1["set"]):
@@ -542,20 +577,30 @@ def _discussion(ctx: Mapping) -> list[str]:
         if rows:
             L += [
                 "The Dex-Net and K_s=100 upper-bound rows depend only on the prior and "
-                "the reservoirs, so they measure how well the synthetic prior was "
-                "calibrated to the paper: " + "; ".join(rows) + ".",
+                f"the reservoirs, so they measure the {prior} prior's first choice "
+                "and its top 100 against GQ-CNN's: " + "; ".join(rows) + ".",
                 "",
             ]
-    L += [
-        "GQ-CNN cannot be run here, so q is made from the ground truth p with "
-        "seeded noise (`precompute/prior.py`). Its one constant was calibrated "
-        "against these two rows on the Dex-Net set (`python -m precompute "
-        "calibrate`, reported in the README's deviations). Two numbers fix how good "
-        "the prior's first choice and its top 100 are, not how it ranks the rest: "
-        "its correlation with p over a whole reservoir is in "
-        "`results/precompute/sets.md`. What Table I shows, set by set:",
-        "",
-    ]
+    if prior == "synthetic":
+        L += [
+            "GQ-CNN cannot be run here, so q is made from the ground truth p with "
+            "seeded noise (`precompute/prior.py`). Its one constant was calibrated "
+            "against these two rows on the Dex-Net set (`python -m precompute "
+            "calibrate`, reported in the README's deviations). Two numbers fix how "
+            "good the prior's first choice and its top 100 are, not how it ranks "
+            "the rest: its correlation with p over a whole reservoir is in "
+            "`results/precompute/sets.md`. What Table I shows, set by set:",
+            "",
+        ]
+    else:
+        L += [
+            "GQ-CNN's weights cannot be had here; q comes from a small network of "
+            "the same kind that sees the pose's depth image and the grasp, trained "
+            "on generated objects only and never tuned to these rows (its quality "
+            "on each set: the prior section above and "
+            "`results/precompute/sets.md`). What Table I shows, set by set:",
+            "",
+        ]
     if main:
         L += _prior_comparisons(main["table1"])
     L += [
@@ -697,14 +742,21 @@ def main_tables(res: Results, out: Path) -> tuple[list[Path], dict[str, Any]]:
     win = an.winners(gaps)
     files = []
     horizon = int(runs["horizon"].max()) if "horizon" in runs.columns else None
-    files += write_pair("table1", table_one_table(t1, horizon), out)
+    prior = an.prior_kind(res)
+    files += write_pair("table1", table_one_table(t1, horizon, prior), out)
     files += write_pair("wins", wins_table(wins), out)
-    files += write_pair("per_object", per_object_table(gaps, win), out)
+    files += write_pair("per_object", per_object_table(gaps, win, prior), out)
     files.append(_write_csv(t1, out / "table1.csv"))
     files.append(_write_csv(gaps, out / "per_object.csv"))
     files.append(_write_csv(wins, out / "wins.csv"))
     return files, dict(
-        gaps=gaps, table1=t1, wins=wins, winners=win, runs=runs, horizon=horizon
+        gaps=gaps,
+        table1=t1,
+        wins=wins,
+        winners=win,
+        runs=runs,
+        horizon=horizon,
+        prior=prior,
     )
 
 
@@ -768,7 +820,13 @@ def _table_one_section(ctx: Mapping) -> list[str]:
         "",
     ]
     if main:
-        L.append(to_markdown(table_one_table(main["table1"], main.get("horizon"))))
+        L.append(
+            to_markdown(
+                table_one_table(
+                    main["table1"], main.get("horizon"), main.get("prior", "unknown")
+                )
+            )
+        )
         L.append(to_markdown(wins_table(main["wins"])))
         L += _table_one_sentences(main)
         L += [

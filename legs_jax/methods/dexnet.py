@@ -16,7 +16,7 @@ METHOD = Method(
     prior_only="greedy",
     init=lambda ctx, cfg: _fixed.init(ctx, cfg, which="dexnet"),
     candidates=_fixed.candidates_dexnet,
-    label="Dex-Net (synthetic prior)",
+    label="Dex-Net (prior only)",
     short_label="Dex-Net*",
     style=dict(color="#7f7f7f", ls="--", lw=1.6),
     reference=lambda problem, trial, hp: ref.Fixed(
