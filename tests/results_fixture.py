@@ -250,6 +250,8 @@ def _write_experiment(root: Path, name: str, arms, objects, *, checks, active, s
         "config_hash": "f" * 64,
         "git": {"commit": "0" * 40, "dirty": False},
         "extra": {"rho_min": list(RHO_MIN) if name == "early_stopping" else []},
+        # the fixture's problems carry a prior made from p, as the synthetic one
+        "priors": ["synthetic"],
     }
     res.atomic_write_json(manifest, d / "manifest.json")
 

@@ -299,3 +299,23 @@ def test_curve_summary_area_and_final():
     assert s.loc["legs", "final"] == pytest.approx(0.0)
     assert s.loc["legs", "area"] == pytest.approx(0.25)
     assert s.loc["dexnet", "area"] == pytest.approx(0.4)
+
+
+def test_prior_kind_comes_from_the_manifest():
+    """The report names the prior the problems carried, as the sweep's manifest
+    recorded it; results from before the manifests said are 'unknown'."""
+
+    class Res:
+        def __init__(self, manifest):
+            self._m = manifest
+
+        def manifest(self, experiment):
+            return self._m
+
+    assert an.prior_kind(Res({"priors": ["learned"]})) == "learned"
+    assert an.prior_kind(Res({"priors": ["learned", "synthetic"]})) == (
+        "learned+synthetic"
+    )
+    assert an.prior_kind(Res({})) == "unknown"
+    assert "generated objects" in an.prior_words("learned")
+    assert an.prior_words("unknown") == "unknown"
