@@ -99,7 +99,6 @@ from collections.abc import Mapping, Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
-from scipy.special import betaincinv
 
 from legs_jax.errors import ConfigError
 from legs_jax.problem import Problem
@@ -307,6 +306,8 @@ def legs_prune(
     if idx.size == 0:
         return removed
     a, b = alpha[idx], beta[idx]
+    from scipy.special import betaincinv  # imported here: 0.1 s at start-up
+
     lower = betaincinv(a, b, delta)  # X_{i,ℓ}
     upper = betaincinv(a, b, 1.0 - delta)  # X_{i,u}
     x_star_lower = lower.max()  # X*_ℓ

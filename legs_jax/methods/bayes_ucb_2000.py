@@ -19,7 +19,6 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from scipy.special import betaincinv
 
 from legs_jax import reference as ref
 from legs_jax import sampling
@@ -113,6 +112,8 @@ class Reference(ref.Borges):
     def select(self, s: int, rng: np.random.Generator) -> int:
         idx = np.flatnonzero(self.cand[s])  # ascending ids: argmax takes the lowest
         q = 1.0 - 1.0 / (self.count[s] + 2.0)
+        from scipy.special import betaincinv  # the NumPy twin only
+
         return int(idx[np.argmax(betaincinv(self.alpha[s, idx], self.beta[s, idx], q))])
 
     def update(self, s: int, a: int, r: bool) -> None:
