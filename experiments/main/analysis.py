@@ -444,6 +444,17 @@ def _problem_model_section(ctx: Mapping) -> list[str]:
         "the paper's numbers.",
         "",
     ]
+    main = ctx.get("main") or {}
+    prior = main.get("prior", "unknown")
+    if prior != "synthetic":
+        # previous/ holds results of the synthetic prior (its README says so)
+        L += [
+            f"The prior changed too, from the synthetic stand-in to the {prior} "
+            "one: the corr(p, q) and prior-only columns below, and every row of "
+            "Table I, move with both changes; the prior section above compares "
+            "the two priors on the same new problems.",
+            "",
+        ]
     before, after = pm.get("sets_before"), pm.get("sets_after")
     if before is not None and after is not None:
         L += [
