@@ -25,7 +25,7 @@ import importlib
 from pathlib import Path
 from types import ModuleType, SimpleNamespace
 
-__all__ = ["DEFAULTS", "EXPERIMENTS", "analysis", "get", "names"]
+__all__ = ["DEFAULTS", "EXPERIMENTS", "analysis", "declared_methods", "get", "names"]
 
 # The sizes of SPEC §7 (T x R = 10 x 10 runs of H = 3000 steps per object, the gap
 # every 10 steps, a check every 100) and nothing recorded beyond the runs.
@@ -69,6 +69,12 @@ def get(name: str) -> SimpleNamespace:
     mod = _declaration(name)
     own = {k: v for k, v in vars(mod).items() if k.isupper()}
     return SimpleNamespace(**{**DEFAULTS, **own})
+
+
+def declared_methods() -> set[str]:
+    """The methods some experiment declares an arm of (the others, such as a
+    user's own, run with their defaults when asked for by name)."""
+    return {m for n in EXPERIMENTS for m, _, _ in get(n).ARMS}
 
 
 def analysis(name: str) -> ModuleType | None:

@@ -125,15 +125,16 @@ def _exported(fn: Callable, desc: str, folder: Path, leaves, tree):
     def flat(*xs):
         return fn(*jax.tree_util.tree_unflatten(tree, xs))
 
-    exp = export.export(jax.jit(flat))(*leaves)
+    data = export.export(jax.jit(flat))(*leaves).serialize()
     try:
         folder.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(f".tmp{os.getpid()}")
-        tmp.write_bytes(exp.serialize())
+        tmp.write_bytes(data)
         os.replace(tmp, path)
     except OSError:  # a read-only cache: keep the program in memory only
         pass
-    return export.deserialize(exp.serialize())
+    # run what a later process will load, so that its numbers never differ
+    return export.deserialize(data)
 
 
 def call(fn: Callable, *args):

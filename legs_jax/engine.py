@@ -439,7 +439,7 @@ def simulate(
             out["check_values_attempted"] = v_att.astype(jnp.float32)
         if record_active_set:
             if m.active_set is None:
-                act = jnp.full((B, P, _active_width(cfg)), -1, jnp.int32)
+                act = jnp.full((B, P, _active_width(dict(cfg.static))), -1, jnp.int32)
             else:
                 act = m.active_set(c.mstate, ctx, cfg)
                 act = jnp.where(c.visited[..., None], act, -1).astype(jnp.int32)
@@ -546,10 +546,31 @@ def _is_int(x: Any) -> bool:
     return isinstance(x, numbers.Integral) and not isinstance(x, bool)
 
 
-def _active_width(cfg: Config) -> int:
-    """Slots of a recorded active set: k, or the fixed top size for a method
-    without k."""
-    return dict(cfg.static).get("k", TOP_FIXED)
+def _active_width(static: Mapping[str, Any]) -> int:
+    """Slots of a recorded active set: k among a method's static hyperparameters,
+    or the fixed top size for a method without k."""
+    return int(static.get("k", TOP_FIXED))
+
+
+def table_rows(pairs: int) -> int:
+    """Rows of the tables for ``pairs`` (object, trial) pairs: the next power of
+    two (fewer distinct shapes to compile)."""
+    return 1 << max(0, (pairs - 1).bit_length())
+
+
+def mini_batch_rows(
+    method: Method,
+    cfg: Config,
+    rows: int,
+    n_dev: int,
+    platform: str,
+    batch_size: int | None = None,
+) -> int:
+    """Rollouts per device of each mini-batch of a run of ``rows`` rollouts
+    (``batch_size``: the user's largest, else the method's default)."""
+    largest = batch_size or _default_batch_size(method, platform, cfg)
+    quantum = 1 if batch_size or largest <= 64 else 16
+    return _batch_rows(-(-rows // n_dev), largest, quantum)
 
 
 def _default_batch_size(method: Method, platform: str, cfg: Config) -> int:
@@ -599,9 +620,10 @@ def compiled(
     ``raw_keys`` the keys come as their raw uint32 words [..., 2]
     (:func:`legs_jax.keys.rollout_key_data`).
     """
+    m = methods_mod.resolve(method)
     fn = functools.partial(
         simulate,
-        method=methods_mod.resolve(method),
+        method=m,
         cfg=cfg,
         horizon=horizon,
         record_every=record_every,
@@ -618,7 +640,6 @@ def compiled(
         )(ks, hp)
     if raw_keys:
         fn = _wrapping_keys(fn, 2)
-    m = methods_mod.resolve(method)
     return _programs.describe(
         _jit_rows(fn, devices, (None, "b", "b", "b"), grid),
         _programs.method_fingerprint(m),
@@ -792,7 +813,7 @@ def run(
     N = O * T
     rows = G * O * T * R
     like_pairs, like_rows = shape_of if shape_of is not None else (N, rows)
-    n_pad = 1 << max(0, (max(N, like_pairs) - 1).bit_length())
+    n_pad = table_rows(max(N, like_pairs))
     tables_np = make_tables(batch, trials, pad_to=n_pad)
     g_i, o_i, t_i, r_i = (a.reshape(-1) for a in np.indices((G, O, T, R)))
     ot_rows = (o_i * T + t_i).astype(np.int32)
@@ -848,10 +869,8 @@ def run(
         static = dict(zip(m.static, statics, strict=True))
         cfg = Config(num_poses=P, num_grasps=K, **static)
         sel = np.flatnonzero(np.isin(g_i, gs))
-        largest = batch_size or _default_batch_size(m, platform, cfg)
-        quantum = 1 if batch_size or largest <= 64 else 16
         like = max(sel.size, like_rows * len(gs) // G)
-        per_dev = _batch_rows(-(-like // n_dev), largest, quantum)
+        per_dev = mini_batch_rows(m, cfg, like, n_dev, platform, batch_size)
         Bc = per_dev * n_dev
         fn = compiled(
             m, cfg, H, record_every, check_every,
@@ -891,7 +910,7 @@ def run(
         bar.close()
 
     shape = (G, O, T, R)
-    width = int(hp["k"][0]) if "k" in hp else TOP_FIXED  # active-set slots
+    width = _active_width({n: v[0] for n, v in hp.items()})  # active-set slots
 
     def get(name, dtype=None, extra=()):
         if name not in results:

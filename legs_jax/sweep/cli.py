@@ -312,7 +312,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         devices = _devices(a.devices)
         compile_cache(a.compile_cache)
         catalog = _catalog()
-        a.declared = {m for n in EXPERIMENTS for m, _, _ in experiments.get(n).ARMS}
+        a.declared = experiments.declared_methods()
         plans = []
         for name in names:
             own_prior = getattr(experiments.get(name), "PRIOR", None)

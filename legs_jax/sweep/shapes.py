@@ -42,8 +42,7 @@ def _chunk_programs(plan: ExperimentPlan, c, n_dev: int):
     arm = plan.arms[c.arm]
     m = plan_mod._method(arm.method)
     G, O, T = len(arm.grid), len(c.objects), len(c.trials)  # noqa: E741
-    pairs = max(O * T, c.shape_of[0])
-    n_pad = 1 << max(0, (pairs - 1).bit_length())
+    n_pad = engine.table_rows(max(O * T, c.shape_of[0]))
     groups: dict[tuple[int, ...], int] = {}
     for point in arm.grid:
         d = dict(point)
@@ -57,9 +56,7 @@ def _chunk_programs(plan: ExperimentPlan, c, n_dev: int):
         )
         rows = g * O * T * plan.rollouts
         like = max(rows, c.shape_of[1] * g // G)
-        largest = engine._default_batch_size(m, "cpu", cfg)
-        quantum = 1 if largest <= 64 else 16
-        per = engine._batch_rows(-(-like // n_dev), largest, quantum)
+        per = engine.mini_batch_rows(m, cfg, like, n_dev, "cpu")
         every = plan.check_every if c.record_checks else None
         key = (m.name, cfg, every, c.record_active_set, n_pad, per)
         run = -(-rows // (per * n_dev)) * per * n_dev
@@ -160,9 +157,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(["--all", "--dry-run"])
     cli._validate_args(parser, args)
     catalog = planning._catalog()
-    args.declared = {
-        m for n in declared.EXPERIMENTS for m, _, _ in declared.get(n).ARMS
-    }
+    args.declared = declared.declared_methods()
 
     def make_plans():
         out = []
