@@ -254,6 +254,15 @@ def run_experiment(
     compile_total = 0.0
     bar = None
 
+    def close_session() -> None:
+        session.update(
+            ended=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            wall_s=time.perf_counter() - t_session,
+            chunks_computed=computed,
+            chunks_reused=reused,
+            compile_s=compile_total,
+        )
+
     def meta_of(c: Chunk, curve_steps, wall: float, **extra) -> dict[str, Any]:
         return {
             "id": c.id,
@@ -339,11 +348,7 @@ def run_experiment(
         if bar is not None:
             bar.close()
         n_done = sum(1 for c in plan.chunks if res.chunk_done(chunks_dir, c.id))
-        session["ended"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
-        session["wall_s"] = time.perf_counter() - t_session
-        session["chunks_computed"] = computed
-        session["chunks_reused"] = reused
-        session["compile_s"] = compile_total
+        close_session()
         if dist.leader:
             _write_manifest(plan, d, "interrupted", session)
         _say(
@@ -353,11 +358,7 @@ def run_experiment(
         )
         raise
     bar.close()
-    session["ended"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
-    session["wall_s"] = time.perf_counter() - t_session
-    session["chunks_computed"] = computed
-    session["chunks_reused"] = reused
-    session["compile_s"] = compile_total
+    close_session()
     return session
 
 
