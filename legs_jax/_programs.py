@@ -1,24 +1,34 @@
-"""Compiled programs of the engine, each made once per process, and traced once
-per machine.
+"""Compiled programs of the engine, each made once per process, and traced and
+compiled once per machine.
 
 :func:`call` runs a jitted function through an executable compiled ahead of time
 for its argument shapes (so that compilation is timed apart from running,
 :func:`compile_seconds`). Where JAX's persistent compilation cache is on
 (:func:`legs_jax._jax_cache.compile_cache`) and the function was described with
-:func:`describe`, the traced program is also kept on disk (``jax.export``, in the
-cache folder's ``legs_jax-exported/``): a later process deserialises it instead of
-tracing and lowering the Python code again (LEGS took 1.5-3 s to trace on a
-2-core machine), and its compilation then comes from the persistent cache. Every
-call goes through the exported program whenever the cache is on, the first one
-included, so the numbers never depend on whether a program was traced here or
-loaded; a test checks that they equal those of the plain jitted function.
+:func:`describe`, two things are kept in the cache folder's ``legs_jax-exported/``:
+
+- the traced program (``jax.export``, ``<key>.bin``): a later process deserialises
+  it instead of tracing and lowering the Python code again (LEGS took 1.5-3 s to
+  trace on a 2-core machine);
+- its executable, compiled for this processor and these devices
+  (``<key>-<machine>-d<device ids>.exe``, ``jax.experimental.serialize_executable``):
+  a later process loads it and neither lowers nor compiles (lowering alone cost a
+  small job 0.3 s, a fifth of its time). These executables are compiled apart from
+  JAX's persistent cache (jaxlib 0.10 cannot serialise an executable loaded from
+  there again), so they stand in for it.
+
+Every call goes through the exported program whenever the cache is on, the first
+one included, so the numbers never depend on whether a program was traced here or
+loaded; a test checks that they equal those of the plain jitted function, and that
+a second process traces and compiles nothing.
 
 A kept program is found by the SHA-256 of: the source of every module of
 ``legs_jax``, the versions of jax, jaxlib, NumPy and SciPy, the function's
 description (method, static configuration, devices) and its arguments' shapes,
-types and shardings. Only the registered methods (all their functions in
-``legs_jax``) are kept: a user's method may depend on code outside the package,
-so it is traced anew by each process.
+types and shardings; its executable also by the processor (model and instruction
+set flags) and the XLA backend's version. Only the registered methods (all their
+functions in ``legs_jax``) are kept: a user's method may depend on code outside
+the package, so it is traced anew by each process.
 """
 
 from __future__ import annotations
@@ -100,12 +110,9 @@ def _folder() -> Path | None:
     return Path(base) / _FOLDER
 
 
-def _exported(fn: Callable, desc: str, folder: Path, leaves, tree):
-    """The exported program of ``fn`` flattened over its argument leaves, read
-    from ``folder`` or made and written there."""
-    from jax import export
-
-    key = hashlib.sha256(
+def _key(desc: str, leaves, tree) -> str:
+    """The name of a kept program: the code, the description, the arguments."""
+    return hashlib.sha256(
         "\n".join(
             [
                 _code_fingerprint(),
@@ -115,6 +122,24 @@ def _exported(fn: Callable, desc: str, folder: Path, leaves, tree):
             ]
         ).encode()
     ).hexdigest()
+
+
+def _write(path: Path, data: bytes) -> None:
+    """Write atomically; a read-only cache keeps the program in memory only."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".tmp{os.getpid()}")
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
+    except OSError:
+        pass
+
+
+def _exported(fn: Callable, key: str, folder: Path, leaves, tree):
+    """The exported program of ``fn`` flattened over its argument leaves, read
+    from ``folder`` or made and written there."""
+    from jax import export
+
     path = folder / f"{key}.bin"
     if path.is_file():
         try:
@@ -126,15 +151,96 @@ def _exported(fn: Callable, desc: str, folder: Path, leaves, tree):
         return fn(*jax.tree_util.tree_unflatten(tree, xs))
 
     data = export.export(jax.jit(flat))(*leaves).serialize()
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".tmp{os.getpid()}")
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
-    except OSError:  # a read-only cache: keep the program in memory only
-        pass
+    _write(path, data)
     # run what a later process will load, so that its numbers never differ
     return export.deserialize(data)
+
+
+@functools.lru_cache(maxsize=1)
+def _machine_fingerprint() -> str:
+    """The processor and the XLA backend an executable was compiled for (XLA's
+    CPU code uses the instruction-set extensions of the processor it ran on)."""
+    import platform
+
+    dev = jax.devices()[0]
+    parts = [dev.platform, dev.device_kind, dev.client.platform_version]
+    parts.append(platform.machine())
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+            info = f.read().split("\n\n")[0]
+        parts += [
+            line for line in info.splitlines()
+            if line.startswith(("model name", "flags", "Features", "CPU part"))
+        ]  # fmt: skip
+    except OSError:
+        parts.append(platform.processor())
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:16]
+
+
+def _execution_devices(leaves) -> tuple | None:
+    """The devices a program over these (committed) arguments runs on, in the
+    order of its device assignment; None where that cannot be told."""
+    from jax.sharding import NamedSharding, SingleDeviceSharding
+
+    for x in leaves:
+        s = getattr(x, "sharding", None)
+        if isinstance(s, NamedSharding):
+            return tuple(s.mesh.devices.flat)
+        if isinstance(s, SingleDeviceSharding):
+            return tuple(s.device_set)
+    return None
+
+
+def _fresh_compile(lowered):
+    """Compile without JAX's persistent cache: an executable loaded from there
+    cannot be serialised again (jaxlib 0.10 drops its functions), so the kept
+    executables are made from fresh compiles, and then stand in for that cache."""
+    from jax.experimental.compilation_cache import compilation_cache
+
+    was = jax.config.jax_enable_compilation_cache
+    jax.config.update("jax_enable_compilation_cache", False)
+    compilation_cache.reset_cache()
+    try:
+        return lowered.compile()
+    finally:
+        jax.config.update("jax_enable_compilation_cache", was)
+        compilation_cache.reset_cache()
+
+
+def _executable(fn: Callable, desc: str, folder: Path, leaves, tree):
+    """The compiled program of ``fn`` over the flat ``leaves``: its kept executable
+    when this machine made one, else compiled from the kept (or new) exported
+    program and kept."""
+    from jax.experimental import serialize_executable
+
+    key = _key(desc, leaves, tree)
+    devices = _execution_devices(leaves)
+    in_tree = jax.tree_util.tree_structure((tuple(leaves), {}))
+    exe_path = None
+    if devices is not None:
+        ids = "-".join(str(d.id) for d in devices)
+        exe_path = folder / f"{key}-{_machine_fingerprint()}-d{ids}.exe"
+    if exe_path is not None and exe_path.is_file():
+        try:
+            exp = _exported(fn, key, folder, leaves, tree)
+            return serialize_executable.deserialize_and_load(
+                exe_path.read_bytes(), in_tree, exp.out_tree,
+                backend=devices[0].client, execution_devices=devices,
+            )  # fmt: skip
+        except Exception:  # noqa: BLE001 - a damaged file is made again
+            pass
+    exp = _exported(fn, key, folder, leaves, tree)
+    lowered = jax.jit(exp.call).lower(*leaves)
+    if exe_path is None:
+        return lowered.compile()
+    compiled = _fresh_compile(lowered)
+    try:
+        data, made_tree, _ = serialize_executable.serialize(compiled)
+    except (ValueError, NotImplementedError):
+        return compiled
+    if made_tree == in_tree:
+        _write(exe_path, data)
+    return compiled
 
 
 def call(fn: Callable, *args):
@@ -149,8 +255,7 @@ def call(fn: Callable, *args):
         if desc is None or folder is None:
             got = (fn.lower(*args).compile(), False)
         else:
-            exp = _exported(fn, desc, folder, leaves, tree)
-            got = (jax.jit(exp.call).lower(*leaves).compile(), True)
+            got = (_executable(fn, desc, folder, leaves, tree), True)
         _COMPILE_SECONDS[0] += time.perf_counter() - t0
         _EXECUTABLES[key] = got
         while len(_EXECUTABLES) > _MAX_EXECUTABLES:

@@ -30,6 +30,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from legs_jax import sampling
+
 __all__ = [
     "ENV_STREAM",
     "METHOD_STREAM",
@@ -66,28 +68,26 @@ def _rollout_keys(seed, object_ids, trials, rollouts):
     return jax.vmap(one)(object_ids, trials, rollouts)
 
 
-@jax.jit
-def _rollout_key_data(seed, object_ids, trials, rollouts):
-    return jax.random.key_data(_rollout_keys(seed, object_ids, trials, rollouts))
-
-
 def rollout_key_data(
     seed: int, object_ids: np.ndarray, trials: np.ndarray, rollouts: np.ndarray
 ) -> np.ndarray:
     """The raw uint32 words [B, 2] of :func:`rollout_keys` as a NumPy array
     (``jax.random.wrap_key_data`` gives the keys back).
 
-    The rows are computed padded to a power of two, so that the program behind
-    it compiles once per size class (and then comes from the compilation cache)."""
+    Computed on the host with NumPy (no JAX program to trace or compile): the key
+    of ``seed`` is the words (0, seed), and ``fold_in(k, d)`` is Threefry-2x32 of
+    the counter (0, d) under k, as in ``jax.random``; a test checks equality with
+    :func:`rollout_keys`."""
     ids = [
         np.asarray(x, np.int64).reshape(-1).astype(np.uint32)
         for x in (object_ids, trials, rollouts)
     ]
-    n = ids[0].size
-    size = 1 << max(0, (n - 1).bit_length())
-    padded = [np.concatenate([x, np.zeros(size - n, np.uint32)]) for x in ids]
-    out = _rollout_key_data(np.uint32(seed), *padded)
-    return np.asarray(out)[:n]
+    k0 = np.zeros(ids[0].shape, np.uint32)
+    k1 = np.full(ids[0].shape, np.uint32(seed), np.uint32)
+    zero = np.zeros_like(k0)
+    for d in ids:
+        k0, k1 = sampling.threefry2x32(k0, k1, zero, d, xp=np)
+    return np.stack([k0, k1], axis=1)
 
 
 def rollout_keys(

@@ -75,32 +75,32 @@ _MIN_SHAPE = 1e-30
 # --------------------------------------------------------------------------------------
 
 
-def _rotl(x: jax.Array, r: int) -> jax.Array:
-    return (x << jnp.uint32(r)) | (x >> jnp.uint32(32 - r))
+def _rotl(x, r: int, xp=jnp):
+    return (x << xp.uint32(r)) | (x >> xp.uint32(32 - r))
 
 
-def threefry2x32(
-    k0: jax.Array, k1: jax.Array, x0: jax.Array, x1: jax.Array
-) -> tuple[jax.Array, jax.Array]:
+def threefry2x32(k0, k1, x0, x1, xp=jnp):
     """Threefry-2x32 (20 rounds) of the counter (x0, x1) under the key (k0, k1).
 
     All arguments are uint32 arrays that broadcast together; returns two uint32
     arrays of the broadcast shape. Bit-identical to the generator of ``jax.random``.
+    ``xp=numpy`` computes the same words on the host, with no JAX program (NumPy
+    arrays wrap around as uint32 arithmetic does).
     """
-    k0 = jnp.asarray(k0, jnp.uint32)
-    k1 = jnp.asarray(k1, jnp.uint32)
-    k2 = k0 ^ k1 ^ jnp.uint32(0x1BD11BDA)
+    k0 = xp.asarray(k0, xp.uint32)
+    k1 = xp.asarray(k1, xp.uint32)
+    k2 = k0 ^ k1 ^ xp.uint32(0x1BD11BDA)
     ks = (k0, k1, k2)
     rotations = ((13, 15, 26, 6), (17, 29, 16, 24))
-    x0 = jnp.asarray(x0, jnp.uint32) + k0
-    x1 = jnp.asarray(x1, jnp.uint32) + k1
+    x0 = xp.asarray(x0, xp.uint32) + k0
+    x1 = xp.asarray(x1, xp.uint32) + k1
     for i in range(5):
         for r in rotations[i % 2]:
             x0 = x0 + x1
-            x1 = _rotl(x1, r)
+            x1 = _rotl(x1, r, xp)
             x1 = x1 ^ x0
         x0 = x0 + ks[(i + 1) % 3]
-        x1 = x1 + ks[(i + 2) % 3] + jnp.uint32(i + 1)
+        x1 = x1 + ks[(i + 2) % 3] + xp.uint32(i + 1)
     return x0, x1
 
 

@@ -177,6 +177,10 @@ _KEPT_SCRIPT = textwrap.dedent(
     from legs_jax.synthetic import make_problem
     if sys.argv[1] != "off":
         compile_cache(sys.argv[1])
+    compiles = []
+    jax.monitoring.register_event_duration_secs_listener(
+        lambda event, secs, **kw: compiles.append(event)
+        if event == "/jax/core/compile/backend_compile_duration" else None)
     batch = stack([make_problem(4, num_poses=3, num_grasps=150, num_trials=2)])
     out = {}
     for method in ("legs", "borges_2000"):
@@ -184,7 +188,8 @@ _KEPT_SCRIPT = textwrap.dedent(
                        check_every=50, progress=False)
         out[method] = {f: np.asarray(getattr(r, f)).tolist()
                        for f in ("final_gap", "gap_curve", "check_p_lower")}
-    print(json.dumps({"results": out, "traces": len(engine.trace_counts())}))
+    print(json.dumps({"results": out, "traces": len(engine.trace_counts()),
+                      "compiles": len(compiles)}))
     """
 )
 
@@ -192,7 +197,8 @@ _KEPT_SCRIPT = textwrap.dedent(
 def test_programs_kept_on_disk_give_the_same_numbers(tmp_path):
     """With the compilation cache on, the engine runs each program as exported
     (traced once, kept on disk): its numbers equal the plain jitted program's, and
-    a second process loads the program instead of tracing the method again."""
+    a second process loads the compiled executables, tracing and compiling
+    nothing."""
 
     def run(cache):
         proc = subprocess.run(
@@ -211,8 +217,11 @@ def test_programs_kept_on_disk_give_the_same_numbers(tmp_path):
     assert first["results"] == plain["results"] == second["results"]
     assert plain["traces"] > 0 and first["traces"] > 0
     assert second["traces"] == 0  # loaded, not traced
-    kept = list((tmp_path / "cache" / "legs_jax-exported").glob("*.bin"))
-    assert len(kept) >= 3  # two methods' rollouts and the Dirichlet checks
+    assert first["compiles"] >= 3 and second["compiles"] == 0  # nor compiled
+    kept = tmp_path / "cache" / "legs_jax-exported"
+    # two methods' rollouts and the Dirichlet checks, traced and compiled
+    assert len(list(kept.glob("*.bin"))) >= 3
+    assert len(list(kept.glob("*.exe"))) >= 3
 
 
 @pytest.mark.parametrize("method", ["legs", "borges_2000", "tql"])
@@ -304,6 +313,22 @@ def test_result_layout_and_constant_rows():
         0,
     )
     np.testing.assert_array_equal(r0.final_gap, r.final_gap[:1])
+
+
+def test_rollout_key_data_on_the_host_equals_jax_keys():
+    """The NumPy words equal jax.random's keys, for seeds and ids up to 2**32 - 1."""
+    import jax
+
+    rng = np.random.default_rng(3)
+    n = 257
+    ids = [rng.integers(0, 2**32, n, dtype=np.int64) for _ in range(3)]
+    ids[0][:3] = [0, 1, 2**32 - 1]
+    for seed in (0, 7, 2**32 - 1):
+        got = keys.rollout_key_data(seed, *ids)
+        assert got.dtype == np.uint32 and got.shape == (n, 2)
+        want = jax.random.key_data(keys.rollout_keys(seed, *ids))
+        np.testing.assert_array_equal(got, np.asarray(want))
+    assert keys.rollout_key_data(0, [], [], []).shape == (0, 2)
 
 
 def test_keys_contract():
