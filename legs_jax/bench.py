@@ -14,7 +14,12 @@ of several repeats; compile time is reported apart.
   (:func:`legs_jax.engine.run`) against the NumPy reference implementation
   (:mod:`legs_jax.reference`) of the same method with the same settings, and the
   ratio.
-- The projected wall time of ``python -m legs_jax.sweep --all`` from those rates.
+- The projected wall time of ``python -m legs_jax.sweep --all`` from those rates:
+  in a full run with the problem files present, every method is timed again at
+  each pose count the sweep pads its chunks to (8, 16, 32) and the sweep's own
+  chunks are charged at those rates, the chunks it copies from an earlier
+  experiment free (:func:`projection_by_chunk`); otherwise every object at the
+  table's pose count (:func:`projection`).
 - The raw figures behind the physical limits: random words per second, words per
   exact Beta draw, memory bandwidth.
 
@@ -355,12 +360,12 @@ def bench_memory(cfg: Settings) -> dict[str, float]:
 # ----------------------------------------------------------------------- engine
 
 
-def _problem(cfg: Settings):
+def _problem(cfg: Settings, poses: int | None = None):
     from legs_jax import synthetic
 
     return synthetic.make_problem(
         0,
-        num_poses=cfg.poses,
+        num_poses=poses or cfg.poses,
         num_grasps=cfg.grasps,
         num_trials=cfg.trials,
         name="bench",
@@ -489,7 +494,9 @@ def _count_objects(names: Sequence[str]) -> int:
 
 
 def projection(rates: dict[str, float]) -> dict[str, Any]:
-    """Minutes of ``--all`` from rollout-steps per second of each method.
+    """Minutes of ``--all`` from rollout-steps per second of each method, every
+    object charged at the benchmark's pose count (the projection without the
+    problem files: :func:`projection_by_chunk` is the one used with them).
 
     Work of an arm = objects x trials x rollouts x horizon x grid points, charged
     at the measured rate of its method (with the Dirichlet checks where the main
@@ -515,6 +522,74 @@ def projection(rates: dict[str, float]) -> dict[str, Any]:
         per_exp[name] = round(exp_s / 60.0, 2)
         seconds += exp_s
     return {
+        "projection": "by experiment, every object at the benchmark's pose count",
+        "projected_all_minutes": round(seconds / 60.0, 2),
+        "projected_minutes_per_experiment": per_exp,
+        "all_rollout_steps": steps_total,
+    }
+
+
+def sweep_plans() -> tuple[list | None, str | None]:
+    """The plans of ``--all`` (chunks, pose buckets, padding), or None and the
+    reason when they cannot be made here (problem files missing)."""
+    try:
+        from legs_jax.sweep import shapes
+
+        return shapes.plan_all(), None
+    except Exception as e:  # noqa: BLE001 - the projection falls back
+        return None, str(e).splitlines()[0] if str(e) else type(e).__name__
+
+
+def pose_buckets(plans: Sequence[Any]) -> tuple[int, ...]:
+    """The pose counts the sweep's chunks are padded to."""
+    return tuple(sorted({c.num_poses for plan in plans for c in plan.chunks}))
+
+
+def projection_by_chunk(
+    rates_by_poses: dict[int, dict[str, float]], plans: Sequence[Any], n_dev: int
+) -> dict[str, Any]:
+    """Minutes of ``--all`` chunk by chunk, as the sweep runs them: each chunk's
+    rollouts as the engine runs them (mini-batch padding included) times the
+    horizon, at its method's rate for the chunk's pose bucket (``rates_by_poses[P]``;
+    a bucket not measured takes the nearest measured one, a method not measured
+    its ``bench_proxy``). A chunk whose rollouts an earlier experiment already
+    made is copied by the sweep, not run, and costs nothing here. Compilation,
+    loading and writing are not included."""
+    from legs_jax.sweep import shapes
+    from legs_jax.sweep.store import _object_stamp
+
+    proxy = _proxy()
+    measured = sorted(rates_by_poses)
+
+    def rate(method: str, poses: int) -> float:
+        p = min(measured, key=lambda m: (abs(m - poses), m))
+        got = rates_by_poses[p]
+        return got.get(method) or got[proxy[method]]
+
+    made: set = set()
+    per_exp: dict[str, float] = {}
+    steps_total = seconds = 0.0
+    for plan in plans:
+        exp_s = 0.0
+        new: set = set()
+        for c in plan.chunks:
+            pairs = {
+                (c.signature, _object_stamp(plan.objects[i]), t)
+                for i in c.objects
+                for t in c.trials
+            }
+            if c.signature and not c.record_active_set and pairs <= made:
+                continue  # copied from an earlier experiment
+            new |= pairs
+            for key, _rows, run in shapes._chunk_programs(plan, c, n_dev):
+                steps = run * plan.horizon
+                steps_total += steps
+                exp_s += steps / rate(key[0], c.num_poses)
+        made |= new
+        per_exp[plan.name] = round(exp_s / 60.0, 2)
+        seconds += exp_s
+    return {
+        "projection": "chunk by chunk, at each pose bucket's rates, copies free",
         "projected_all_minutes": round(seconds / 60.0, 2),
         "projected_minutes_per_experiment": per_exp,
         "all_rollout_steps": steps_total,
@@ -571,7 +646,24 @@ def run(cfg: Settings, quiet: bool = False) -> dict[str, Any]:
         "check_every": CHECK_EVERY,
         "checked_methods": [m for m in cfg.methods if _checked(m)],
     }
-    result.update(projection(jax_rates))
+    plans, why = (None, "a quick run") if cfg.quick else sweep_plans()
+    if plans is None:
+        result.update(projection(jax_rates))
+        result["projection_note"] = f"no sweep plans ({why})"
+    else:
+        import jax
+
+        by_poses = {cfg.poses: jax_rates}
+        for poses in pose_buckets(plans):
+            if poses in by_poses:
+                continue
+            at = _problem(cfg, poses)
+            by_poses[poses] = {}
+            for method in cfg.methods:
+                _say(f"engine: {method} (JAX) at {poses} poses", quiet)
+                by_poses[poses][method] = bench_jax_engine(method, cfg, at)["jax"]
+        result["steps_per_s_by_poses"] = {str(p): r for p, r in by_poses.items()}
+        result.update(projection_by_chunk(by_poses, plans, len(jax.local_devices())))
     result["machine"]["load_average_end"] = _load()
     return result
 
@@ -642,13 +734,28 @@ def format_table(r: dict[str, Any]) -> str:
             f"  {method:<12} {_fmt_rate(row['jax']):>9} {np_:>9} {ratio:>7}"
             f" {npa:>16} {ra:>7} {row['compile_s']:>7}s"
         )
+    by_poses = r.get("steps_per_s_by_poses")
+    if by_poses:
+        cols = sorted(by_poses, key=int)
+        lines += ["", "JAX rollout steps per second by pose count (for the projection)"]
+        lines.append(
+            "  " + f"{'method':<16}" + "".join(f"{'P=' + c:>10}" for c in cols)
+        )
+        for method in sorted(by_poses[cols[0]]):
+            lines.append(
+                f"  {method:<16}"
+                + "".join(f"{_fmt_rate(by_poses[c][method]):>10}" for c in cols)
+            )
     lines += [
         "",
-        f"Projected wall time of `python -m legs_jax.sweep --all`: "
+        f"Projected wall time of `python -m legs_jax.sweep --all` "
+        f"({r['projection']}): "
         f"{r['projected_all_minutes']:.1f} min "
         f"({r['all_rollout_steps']:.3g} rollout-steps; compilation and precompute "
         "not included)",
     ]
+    if r.get("projection_note"):
+        lines.append(f"  ({r['projection_note']})")
     for name, minutes in r["projected_minutes_per_experiment"].items():
         lines.append(f"  {name:<16} {minutes:8.1f} min")
     return "\n".join(lines)

@@ -769,3 +769,47 @@ def test_shape_buckets_trade_programs_for_padding():
         64,
         96,
     ]
+
+
+def test_projection_by_chunk_charges_each_bucket_its_rate_and_copies_nothing():
+    """The benchmark's projection runs over the sweep's chunks: each pose bucket
+    at its own rates (linear in 1/rate), never below the real rollouts' work, and
+    an experiment whose chunks repeat an earlier one's rollouts costs nothing."""
+    from legs_jax import bench
+
+    objects = [_obj(f"o{p}", p, 120, oid=i) for i, p in enumerate((5, 7, 12, 14))]
+    arms = [("legs", "", {}), ("borges_2000", "", {})]
+    main = _plan(objects, arms, trials=4, rollouts=5)
+    main.chunks = sweep.plan_chunks(main)
+    again = _plan(objects[:3], arms, trials=4, rollouts=5)
+    again.name = "again"
+    again.chunks = sweep.plan_chunks(again)
+    other = _plan(objects[:3], arms, trials=4, rollouts=5)
+    other.name, other.seed = "other", 1
+    other.chunks = sweep.plan_chunks(other)
+    assert {c.num_poses for c in main.chunks} == {8, 16}
+    r8 = {"legs": 1e5, "borges_2000": 1e4}
+
+    def minutes(r16, plans=(main,)):
+        return bench.projection_by_chunk({8: r8, 16: r16}, list(plans), 2)[
+            "projected_all_minutes"
+        ]
+
+    r16 = {"legs": 5e4, "borges_2000": 4e3}
+    slow = {k: v / 2 for k, v in r16.items()}
+    free = {k: 1e30 for k in r16}
+    both, only8 = minutes(r16), minutes(free)
+    assert 0 < only8 < both
+    assert minutes(slow) == pytest.approx(only8 + 2 * (both - only8), rel=1e-3)
+    real = sum(  # the real rollouts of every chunk, no padding
+        c.rollouts * main.horizon / {8: r8, 16: r16}[c.num_poses][
+            main.arms[c.arm].method
+        ]
+        for c in main.chunks
+    )
+    assert both * 60 >= real * (1 - 1e-3)
+    # a repeat of main's rollouts is copied; another seed is computed
+    assert minutes(r16, (main, again)) == pytest.approx(both, rel=1e-3)
+    assert minutes(r16, (main, other)) > both * 1.5
+    p = bench.projection_by_chunk({8: r8, 16: r16}, [main, again, other], 2)
+    assert p["projected_minutes_per_experiment"]["again"] == 0

@@ -141,14 +141,10 @@ def tradeoff(
     return rows
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    p = argparse.ArgumentParser(
-        prog="python -m legs_jax.sweep.shapes",
-        description="Compiled programs of `python -m legs_jax.sweep --all` and the "
-        "padded work of each choice of pose buckets (the cost model's estimate).",
-    )
-    p.add_argument("--devices", type=int, default=2, help="CPU devices (default 2)")
-    a = p.parse_args(argv)
+def plan_all() -> list[ExperimentPlan]:
+    """The plans of ``python -m legs_jax.sweep --all`` under the current pose
+    buckets, from the problem files' headers (a :class:`SweepError` names the
+    missing ones)."""
     import experiments as declared
     from legs_jax.sweep import cli
     from legs_jax.sweep import experiments as planning
@@ -158,16 +154,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     cli._validate_args(parser, args)
     catalog = planning._catalog()
     args.declared = declared.declared_methods()
+    out = []
+    for name in declared.EXPERIMENTS:
+        plan = planning._experiment_plan(name, args, catalog, Path("results"))
+        if plan is not None:
+            out.append(plan)
+    return out
 
-    def make_plans():
-        out = []
-        for name in declared.EXPERIMENTS:
-            plan = planning._experiment_plan(name, args, catalog, Path("results"))
-            if plan is not None:
-                out.append(plan)
-        return out
 
-    rows = tradeoff(make_plans, a.devices)
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(
+        prog="python -m legs_jax.sweep.shapes",
+        description="Compiled programs of `python -m legs_jax.sweep --all` and the "
+        "padded work of each choice of pose buckets (the cost model's estimate).",
+    )
+    p.add_argument("--devices", type=int, default=2, help="CPU devices (default 2)")
+    a = p.parse_args(argv)
+    rows = tradeoff(plan_all, a.devices)
     print("| pose buckets | programs compiled | work run (cost model) |")
     print("|---|---|---|")
     for r in rows:
