@@ -802,9 +802,9 @@ def test_projection_by_chunk_charges_each_bucket_its_rate_and_copies_nothing():
     assert 0 < only8 < both
     assert minutes(slow) == pytest.approx(only8 + 2 * (both - only8), rel=1e-3)
     real = sum(  # the real rollouts of every chunk, no padding
-        c.rollouts * main.horizon / {8: r8, 16: r16}[c.num_poses][
-            main.arms[c.arm].method
-        ]
+        c.rollouts
+        * main.horizon
+        / {8: r8, 16: r16}[c.num_poses][main.arms[c.arm].method]
         for c in main.chunks
     )
     assert both * 60 >= real * (1 - 1e-3)
