@@ -220,16 +220,15 @@ def _executable(fn: Callable, desc: str, folder: Path, leaves, tree):
     if devices is not None:
         ids = "-".join(str(d.id) for d in devices)
         exe_path = folder / f"{key}-{_machine_fingerprint()}-d{ids}.exe"
+    exp = _exported(fn, key, folder, leaves, tree)  # its output tree, at least
     if exe_path is not None and exe_path.is_file():
         try:
-            exp = _exported(fn, key, folder, leaves, tree)
             return serialize_executable.deserialize_and_load(
                 exe_path.read_bytes(), in_tree, exp.out_tree,
                 backend=devices[0].client, execution_devices=devices,
             )  # fmt: skip
         except Exception:  # noqa: BLE001 - a damaged file is made again
             pass
-    exp = _exported(fn, key, folder, leaves, tree)
     lowered = jax.jit(exp.call).lower(*leaves)
     if exe_path is None:
         return lowered.compile()

@@ -556,7 +556,7 @@ def projection_by_chunk(
     made is copied by the sweep, not run, and costs nothing here. Compilation,
     loading and writing are not included."""
     from legs_jax.sweep import shapes
-    from legs_jax.sweep.store import _object_stamp
+    from legs_jax.sweep.store import donor_keys
 
     proxy = _proxy()
     measured = sorted(rates_by_poses)
@@ -573,14 +573,10 @@ def projection_by_chunk(
         exp_s = 0.0
         new: set = set()
         for c in plan.chunks:
-            pairs = {
-                (c.signature, _object_stamp(plan.objects[i]), t)
-                for i in c.objects
-                for t in c.trials
-            }
-            if c.signature and not c.record_active_set and pairs <= made:
+            keys = donor_keys(plan, c)
+            if keys is not None and set(keys) <= made:
                 continue  # copied from an earlier experiment
-            new |= pairs
+            new |= set(keys or ())
             for key, _rows, run in shapes._chunk_programs(plan, c, n_dev):
                 steps = run * plan.horizon
                 steps_total += steps
@@ -651,8 +647,6 @@ def run(cfg: Settings, quiet: bool = False) -> dict[str, Any]:
         result.update(projection(jax_rates))
         result["projection_note"] = f"no sweep plans ({why})"
     else:
-        import jax
-
         by_poses = {cfg.poses: jax_rates}
         for poses in pose_buckets(plans):
             if poses in by_poses:

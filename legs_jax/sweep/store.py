@@ -89,6 +89,20 @@ class _Donors:
         return self.index.get((signature, stamp, trial))
 
 
+def donor_keys(plan: ExperimentPlan, chunk: Chunk) -> list[tuple] | None:
+    """The keys under which a chunk's rollouts can come from another experiment's
+    chunk (:class:`_Donors`): one per (object, trial) pair; None for a chunk that
+    is always computed (no signature, or it records active sets, which no
+    experiment records twice)."""
+    if chunk.record_active_set or not chunk.signature:
+        return None
+    return [
+        (chunk.signature, _object_stamp(plan.objects[i]), t)
+        for i in chunk.objects
+        for t in chunk.trials
+    ]
+
+
 def _reuse_chunk(plan: ExperimentPlan, chunk: Chunk, donors: _Donors):
     """The tables of ``chunk`` copied from donor chunks that hold every one of its
     (object, trial) pairs, or None when some pair has no donor. Chunks that record
@@ -97,15 +111,15 @@ def _reuse_chunk(plan: ExperimentPlan, chunk: Chunk, donors: _Donors):
 
     import pandas as pd
 
-    if chunk.record_active_set or not chunk.signature or not donors:
+    keys = donor_keys(plan, chunk)
+    if keys is None or not donors:
         return None
     sources: dict[Path, None] = {}
-    for i in chunk.objects:
-        for t in chunk.trials:
-            d = donors.find(chunk.signature, _object_stamp(plan.objects[i]), t)
-            if d is None:
-                return None
-            sources[d] = None
+    for key in keys:
+        d = donors.find(*key)
+        if d is None:
+            return None
+        sources[d] = None
     names = [plan.objects[i].name for i in chunk.objects]
     arm = plan.arms[chunk.arm]
     parts: dict[str, list[pd.DataFrame]] = {}
