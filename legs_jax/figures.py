@@ -157,13 +157,19 @@ class ObjectData:
         if key not in self._problems:
             from legs_jax import problem as problem_mod
 
-            candidates = [self.root / "problems" / set_ / f"{name}.npz"]
+            # the file the results were made from first, then the shipped set's,
+            # then a build's
+            candidates = []
             for exp in EXPERIMENTS:
                 if self.results.has(exp, "objects"):
                     obj = self.results.table(exp, "objects")
                     if "problem_file" in obj.columns:
                         hit = obj.loc[obj["object"] == name, "problem_file"]
                         candidates += [Path(p) for p in hit if p]
+            candidates += [
+                self.root / "problemset" / set_ / f"{name}.npz",
+                self.root / "problems" / set_ / f"{name}.npz",
+            ]
             found = None
             reason = f"problem file {candidates[0]} missing"
             for c in candidates:

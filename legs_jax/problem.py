@@ -25,7 +25,9 @@ import numpy as np
 from legs_jax._files import atomic_write
 
 __all__ = [
+    "array_digests",
     "peek",
+    "save_compact",
     "FORMAT_VERSION",
     "Problem",
     "ProblemBatch",
@@ -253,8 +255,15 @@ def save(problem: Problem, path: str | os.PathLike) -> Path:
         "name": problem.name,
         "meta": problem.meta,
     }
+    return _write_members(path, members, header)
+
+
+def _write_members(
+    path: Path, members: list[tuple[str, bytes]], header: dict[str, Any]
+) -> Path:
+    """Write ``members`` and the JSON ``header`` as a deterministic ``.npz``."""
     text = json.dumps(header, sort_keys=True)
-    members.append(("meta_json.npy", _npy_bytes(np.array(text))))
+    members = [*members, ("meta_json.npy", _npy_bytes(np.array(text)))]
 
     def write(fh) -> None:
         with zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED) as z:
@@ -265,6 +274,110 @@ def save(problem: Problem, path: str | os.PathLike) -> Path:
                 z.writestr(info, data, compresslevel=6)
 
     return atomic_write(path, write)
+
+
+# ------------------------------------------------------------ the compact encoding
+# A compact problem file (the shipped problem set, ``data/problemset/``) stores
+# the same problem in fewer bytes, and ``load`` decodes it to the arrays above:
+#
+# - ``robustness_count`` [T, P, K] uint8: p = count / ``samples`` exactly as the
+#   build computes it (the fraction of ``samples`` perturbed executions that
+#   succeed: float64 division, then float32);
+# - ``prior_u16`` [T, P, K] uint16: q quantised to k / 65535 (float64 division,
+#   then float32): a shipped problem *is* these values, and results made from it
+#   are made from exactly them;
+# - the grasp geometry of the first ``geometry_trials`` trials only (the others
+#   load as zeros), or none.
+#
+# Its header records ``encoding`` = ``COMPACT`` with ``samples`` and
+# ``geometry_trials``.
+COMPACT = "compact-1"
+PRIOR_LEVELS = 65535
+_COMPACT_MEMBERS = ("robustness_count", "prior_u16")
+
+
+def quantize_prior(prior: np.ndarray) -> np.ndarray:
+    """q as the compact encoding stores it: uint16 levels k / 65535."""
+    q = np.clip(np.asarray(prior, np.float64), 0.0, 1.0)
+    return np.rint(q * PRIOR_LEVELS).astype(np.uint16)
+
+
+def dequantize_prior(levels: np.ndarray) -> np.ndarray:
+    """[...] uint16 levels -> float32 q = k / 65535."""
+    return (levels.astype(np.float64) / PRIOR_LEVELS).astype(np.float32)
+
+
+def robustness_from_counts(count: np.ndarray, samples: int) -> np.ndarray:
+    """[...] success counts of ``samples`` executions -> float32 p."""
+    return (count.astype(np.float64) / float(samples)).astype(np.float32)
+
+
+def save_compact(
+    problem: Problem,
+    path: str | os.PathLike,
+    *,
+    samples: int,
+    geometry_trials: int = 0,
+) -> Path:
+    """Write ``problem`` in the compact encoding (above), atomically and
+    byte-for-byte deterministically.
+
+    ``samples``: the number of perturbed executions behind each p; every p must be
+    a count of them (else :class:`ProblemFileError`). q is quantised to 16 bits:
+    ``load`` returns the quantised values. ``geometry_trials``: keep the grasp
+    geometry of that many leading trials (the rest load as zeros; pose transforms
+    are always kept).
+    """
+    path = Path(path)
+    problem.validate(path)
+    rob = np.asarray(problem.robustness)
+    count = np.rint(rob.astype(np.float64) * samples)
+    if count.min() < 0 or count.max() > 255 or samples > 255:
+        raise ProblemFileError(path, "robustness", "counts do not fit in uint8")
+    count = count.astype(np.uint8)
+    if not np.array_equal(robustness_from_counts(count, samples), rob):
+        raise ProblemFileError(
+            path, "robustness", f"values are not counts of {samples} executions"
+        )
+    T = problem.num_trials
+    g = max(0, min(int(geometry_trials), T))
+    members: list[tuple[str, bytes]] = [
+        ("landing.npy", _npy_bytes(problem.landing)),
+        ("topple.npy", _npy_bytes(problem.topple)),
+        ("robustness_count.npy", _npy_bytes(count)),
+        ("prior_u16.npy", _npy_bytes(quantize_prior(problem.prior))),
+        ("valid.npy", _npy_bytes(problem.valid)),
+        ("pose_transform.npy", _npy_bytes(problem.pose_transform)),
+        ("pose_valid.npy", _npy_bytes(problem.pose_valid)),
+    ]
+    if g:
+        for f in _GEOMETRY:
+            if f != "pose_transform":
+                members.append((f + ".npy", _npy_bytes(getattr(problem, f)[:g])))
+    meta = {k: v for k, v in problem.meta.items() if k != "geometry"}
+    header = {
+        "format_version": FORMAT_VERSION,
+        "name": problem.name,
+        "meta": meta,
+        "encoding": COMPACT,
+        "samples": int(samples),
+        "geometry_trials": g,
+    }
+    return _write_members(path, members, header)
+
+
+def array_digests(problem: Problem) -> dict[str, str]:
+    """SHA-256 of each array the bandit engine reads (dtype, shape and bytes):
+    what names the arrays in which two problem files differ."""
+    import hashlib
+
+    out = {}
+    for f in ("landing", "topple", "robustness", "prior", "valid", "pose_valid"):
+        a = np.ascontiguousarray(getattr(problem, f))
+        h = hashlib.sha256(f"{a.dtype.str}{a.shape}".encode())
+        h.update(a.tobytes())
+        out[f] = h.hexdigest()
+    return out
 
 
 def prior_kind(meta: dict[str, Any]) -> str:
@@ -284,29 +397,54 @@ def prior_kind(meta: dict[str, Any]) -> str:
 def peek(path: str | os.PathLike) -> dict[str, Any]:
     """The header of a problem file without loading its arrays: ``name``,
     ``meta`` and ``shapes`` (field -> array shape, for ``landing`` and
-    ``robustness``). Raises an ``OSError``, ``ValueError`` or ``KeyError`` for an
-    unreadable file (:func:`load` says what is wrong with it)."""
+    ``robustness``). A file without a header (``meta_json``, as an abstract
+    problem written with NumPy may be) has the file's stem as its name and an
+    empty meta, as :func:`load` gives it. Raises :class:`ProblemFileError`,
+    naming the file and the field, for an unreadable file."""
+    path = Path(path)
     shapes = {}
-    with zipfile.ZipFile(path) as z:
-        for field in ("landing", "robustness"):
-            with z.open(field + ".npy") as fh:
-                version = np.lib.format.read_magic(fh)
-                if version == (1, 0):
-                    shape, _, _ = np.lib.format.read_array_header_1_0(fh)
-                elif version == (2, 0):
-                    shape, _, _ = np.lib.format.read_array_header_2_0(fh)
-                else:
-                    with z.open(field + ".npy") as full:
-                        shape = np.lib.format.read_array(full).shape
-                shapes[field] = tuple(shape)
-        raw = z.read("meta_json.npy")
-    arr = np.load(io.BytesIO(raw), allow_pickle=False)
-    header = json.loads(str(arr.reshape(-1)[0]))
+    try:
+        with zipfile.ZipFile(path) as z:
+            names = set(z.namelist())
+            for field, members in (
+                ("landing", ("landing",)),
+                ("robustness", ("robustness", "robustness_count")),
+            ):
+                member = next((m for m in members if m + ".npy" in names), None)
+                if member is None:
+                    raise ProblemFileError(path, field, "missing array")
+                with z.open(member + ".npy") as fh:
+                    shapes[field] = tuple(_npy_shape(fh))
+            raw = z.read("meta_json.npy") if "meta_json.npy" in names else None
+    except ProblemFileError:
+        raise
+    except Exception as e:  # noqa: BLE001 - any unreadable file is refused alike
+        raise ProblemFileError(
+            path, "<file>", f"not a readable .npz file ({e})"
+        ) from None
+    header: dict[str, Any] = {}
+    if raw is not None:
+        try:
+            arr = np.load(io.BytesIO(raw), allow_pickle=False)
+            header = dict(json.loads(str(arr.reshape(-1)[0])))
+        except Exception as e:  # noqa: BLE001
+            raise ProblemFileError(path, "meta_json", f"unreadable ({e})") from None
     return {
-        "name": header.get("name"),
+        "name": header.get("name", path.stem),
         "meta": dict(header.get("meta", {})),
         "shapes": shapes,
     }
+
+
+def _npy_shape(fh) -> tuple[int, ...]:
+    version = np.lib.format.read_magic(fh)
+    if version == (1, 0):
+        shape, _, _ = np.lib.format.read_array_header_1_0(fh)
+    elif version == (2, 0):
+        shape, _, _ = np.lib.format.read_array_header_2_0(fh)
+    else:
+        raise ValueError(f"unsupported .npy version {version}")
+    return shape
 
 
 def _no_geometry(tpk: tuple[int, ...]) -> dict[str, np.ndarray]:
@@ -338,24 +476,72 @@ def load(path: str | os.PathLike) -> Problem:
             path, "<file>", "not an .npz archive (a bare .npy array?)"
         )
     with npz:
+        header: dict[str, Any] = {}
+        if "meta_json" in npz.files:
+            try:
+                header = dict(json.loads(str(npz["meta_json"].reshape(-1)[0])))
+            except Exception as e:  # noqa: BLE001
+                raise ProblemFileError(path, "meta_json", f"unreadable ({e})") from None
+        name = str(header.get("name", path.stem))
+        meta = dict(header.get("meta", {}))
+        compact = header.get("encoding") == COMPACT
+        if header.get("encoding") not in (None, COMPACT):
+            raise ProblemFileError(
+                path, "meta_json", f"unknown encoding {header.get('encoding')!r}"
+            )
+
+        def read(f: str) -> np.ndarray:
+            try:
+                return npz[f]
+            except Exception as e:  # noqa: BLE001 - truncated or corrupt member
+                raise ProblemFileError(path, f, f"cannot be read ({e})") from None
+
         arrays: dict[str, np.ndarray] = {}
+        if compact:
+            for f in _COMPACT_MEMBERS:
+                if f not in npz.files:
+                    raise ProblemFileError(path, f, "missing array")
+            count, levels = read("robustness_count"), read("prior_u16")
+            if count.dtype != np.uint8 or levels.dtype != np.uint16:
+                raise ProblemFileError(
+                    path, "robustness_count", "expected uint8 counts, uint16 levels"
+                )
+            samples = header.get("samples")
+            if not isinstance(samples, int) or not 0 < samples <= 255:
+                raise ProblemFileError(path, "meta_json", "bad 'samples'")
+            if count.max(initial=0) > samples:
+                raise ProblemFileError(
+                    path, "robustness_count", f"a count exceeds {samples} samples"
+                )
+            arrays["robustness"] = robustness_from_counts(count, samples)
+            arrays["prior"] = dequantize_prior(levels)
         for f in _ARRAY_FIELDS:
+            if f in arrays:
+                continue
             if f not in npz.files:
                 if f in _REQUIRED:
                     raise ProblemFileError(path, f, "missing array")
                 continue
-            try:
-                arrays[f] = npz[f]
-            except Exception as e:  # noqa: BLE001 - truncated or corrupt member
-                raise ProblemFileError(path, f, f"cannot be read ({e})") from None
-        name, meta = path.stem, {}
-        if "meta_json" in npz.files:
-            try:
-                header = json.loads(str(npz["meta_json"].reshape(-1)[0]))
-                name = str(header.get("name", name))
-                meta = dict(header.get("meta", {}))
-            except Exception as e:  # noqa: BLE001
-                raise ProblemFileError(path, "meta_json", f"unreadable ({e})") from None
+            arrays[f] = read(f)
+    if compact:
+        T, P, K = arrays["robustness"].shape
+        g = int(header.get("geometry_trials", 0))
+        full = _no_geometry((T, P, K))
+        for f in _GEOMETRY:
+            if f == "pose_transform":
+                continue
+            if f in arrays:
+                if arrays[f].shape[:1] != (g,):
+                    raise ProblemFileError(
+                        path, f, f"expected the geometry of {g} trials"
+                    )
+                full[f][:g] = arrays[f]
+            arrays[f] = full[f]
+        if "pose_transform" not in arrays:
+            arrays["pose_transform"] = full["pose_transform"]
+        meta = {**meta, "geometry_trials": g}
+        if g == 0:
+            meta["geometry"] = False
     if "pose_valid" not in arrays:
         arrays["pose_valid"] = np.ones(arrays["landing"].shape[:1], dtype=bool)
     absent = [f for f in _GEOMETRY if f not in arrays]

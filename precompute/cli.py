@@ -21,6 +21,10 @@ seeded noise; the default while no weights are shipped).
 A file current in everything but the prior's constants keeps its poses, grasps
 and ground truth; only its prior is recomputed.
 
+The sweep runs on the shipped problem set (data/problemset: the problems the
+committed results are made from, the same on every machine) unless told
+--problem-source built; builds made here can be compared with it (compare).
+
 Catalogue objects go to <out>/<set>/<name>.npz (default out: the repository's
 data/problems). A mesh of your own (--mesh) goes to <out>/custom/<name>.npz with
 out defaulting to ./problems under the current folder. Up-to-date files (same
@@ -28,6 +32,9 @@ mesh, parameters and code version) are skipped; --force rebuilds them.
 
 Other commands:
   python -m precompute report      summary.csv and figures of built problems
+  python -m precompute compare     how built problems differ from the shipped set
+                                   (data/problemset), array by array
+  python -m precompute ship        write the shipped set from built problems
   python -m precompute calibrate   prior-only gaps per set for a grid of prior noise
   python -m precompute train-prior generate objects, label them, train the learned
                                    prior (--quick: about a minute)
@@ -221,6 +228,15 @@ def main(argv=None) -> int:
             from .train_prior import main as train_main
 
             return train_main(argv[1:])
+        if argv and argv[0] in ("compare", "ship"):
+            from . import problemset
+
+            cmd = (
+                problemset.main_compare
+                if argv[0] == "compare"
+                else problemset.main_ship
+            )
+            return cmd(argv[1:])
         if argv and argv[0] == "calibrate":
             from .calibrate import main as calibrate_main
 

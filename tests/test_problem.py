@@ -218,7 +218,7 @@ def test_peek_reads_the_header_without_the_arrays(tmp_path: Path) -> None:
     assert head["name"] == "peeked" and head["meta"] == pm.load(path).meta
     assert head["shapes"] == {"landing": (5,), "robustness": (2, 5, 70)}
     (tmp_path / "bad.npz").write_bytes(b"not a zip")
-    with pytest.raises(zipfile.BadZipFile):
+    with pytest.raises(pm.ProblemFileError, match=r"bad\.npz: field '<file>'"):
         pm.peek(tmp_path / "bad.npz")
 
 
@@ -236,3 +236,84 @@ def test_geometry_is_optional(tmp_path: Path, prob: pm.Problem) -> None:
     np.savez(tmp_path / "partial.npz", **partial)
     with pytest.raises(pm.ProblemFileError, match="grasp_axis.*geometry or none"):
         pm.load(tmp_path / "partial.npz")
+
+
+# ------------------------------------------------------ files without a header
+def _bare_arrays(prob: pm.Problem) -> dict[str, np.ndarray]:
+    """Only the arrays the format requires (no meta_json, no geometry)."""
+    return {f: getattr(prob, f) for f in pm._REQUIRED}
+
+
+def test_peek_of_a_file_without_header_gives_an_empty_meta(
+    tmp_path: Path, prob: pm.Problem
+) -> None:
+    path = tmp_path / "abstract.npz"
+    np.savez(path, **_bare_arrays(prob))
+    head = pm.peek(path)
+    assert head["name"] == "abstract" and head["meta"] == {}
+    assert head["shapes"]["robustness"] == prob.robustness.shape
+    assert pm.load(path).meta == {"geometry": False}
+
+
+def test_peek_refuses_a_file_without_landing_naming_file_and_field(
+    tmp_path: Path, prob: pm.Problem
+) -> None:
+    arrays = _bare_arrays(prob)
+    del arrays["landing"]
+    path = tmp_path / "broken.npz"
+    np.savez(path, **arrays)
+    with pytest.raises(pm.ProblemFileError, match=r"broken\.npz: field 'landing'"):
+        pm.peek(path)
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    with pytest.raises(pm.ProblemFileError, match=r"junk\.npz: field '<file>'"):
+        pm.peek(tmp_path / "junk.npz")
+
+
+# ------------------------------------------------------------ compact encoding
+def _counted(prob: pm.Problem, samples: int = 50) -> pm.Problem:
+    """``prob`` with every p a count of ``samples`` executions (as a build's)."""
+    rng = np.random.default_rng(0)
+    count = rng.binomial(samples, prob.robustness.astype(np.float64))
+    rob = (count / samples).astype(np.float32)
+    return dataclasses.replace(prob, robustness=np.where(prob.valid, rob, 0.0))
+
+
+def test_compact_round_trip_is_exact_but_for_the_quantised_prior(
+    tmp_path: Path, prob: pm.Problem
+) -> None:
+    prob = _counted(prob)
+    path = pm.save_compact(prob, tmp_path / "c.npz", samples=50, geometry_trials=1)
+    back = pm.load(path)
+    for f in ("landing", "topple", "robustness", "valid", "pose_valid"):
+        a, b = getattr(prob, f), getattr(back, f)
+        assert a.dtype == b.dtype and np.array_equal(a, b), f
+    np.testing.assert_array_equal(back.pose_transform, prob.pose_transform)
+    # q: 16-bit levels, within half a level of the original
+    assert back.prior.dtype == np.float32
+    assert np.abs(back.prior - prob.prior).max() <= 0.5 / 65535 + 1e-7
+    np.testing.assert_array_equal(
+        back.prior * np.float32(65535), np.rint(back.prior * np.float32(65535))
+    )
+    # the geometry of trial 0 is kept, later trials load as zeros
+    np.testing.assert_array_equal(back.grasp_center[0], prob.grasp_center[0])
+    assert not back.grasp_center[1:].any()
+    assert back.meta["geometry_trials"] == 1
+    # a second save is byte-identical, and the header is peekable
+    again = pm.save_compact(prob, tmp_path / "d.npz", samples=50, geometry_trials=1)
+    assert filecmp.cmp(path, again, shallow=False)
+    assert pm.peek(path)["shapes"]["robustness"] == prob.robustness.shape
+
+
+def test_compact_refuses_p_that_is_not_a_count(
+    tmp_path: Path, prob: pm.Problem
+) -> None:
+    with pytest.raises(pm.ProblemFileError, match="robustness"):
+        pm.save_compact(prob, tmp_path / "c.npz", samples=50)
+
+
+def test_array_digests_name_the_array_that_differs(prob: pm.Problem) -> None:
+    a = pm.array_digests(prob)
+    rob = prob.robustness.copy()
+    rob[0, 0, 0] = np.nextafter(rob[0, 0, 0], np.float32(2))
+    b = pm.array_digests(dataclasses.replace(prob, robustness=rob))
+    assert [k for k in a if a[k] != b[k]] == ["robustness"]

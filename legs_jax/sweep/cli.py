@@ -105,6 +105,15 @@ def build_parser() -> argparse.ArgumentParser:
         "of the catalogue objects",
     )
     what.add_argument(
+        "--problem-source",
+        choices=["shipped", "built"],
+        default="shipped",
+        help="the catalogue objects' problem files: shipped (default; "
+        "data/problemset, the files the committed results are made from, the same "
+        "on every machine) or built (made from the meshes on this machine by "
+        "precompute, built when missing; their bits depend on the processor)",
+    )
+    what.add_argument(
         "--methods",
         nargs="+",
         metavar="NAME",

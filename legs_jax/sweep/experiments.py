@@ -90,15 +90,11 @@ def _resolve_names(requested: Sequence[str], catalog) -> list[tuple[str, str, in
 
 
 def _entry(
-    name: str, set_: str, object_id: int, path: str | os.PathLike
+    name: str, set_: str, object_id: int, path: str | os.PathLike, source: str
 ) -> ObjectEntry:
     from legs_jax import problem as problem_mod
 
-    try:
-        head = problem_mod.peek(path)
-    except Exception:  # noqa: BLE001 - refuse any unreadable file the same way
-        problem_mod.load(path)  # raises ProblemFileError naming the field
-        raise
+    head = problem_mod.peek(path)  # ProblemFileError names the file and field
     T, P, K = head["shapes"]["robustness"]
     return ObjectEntry(
         name=name,
@@ -110,6 +106,7 @@ def _entry(
         num_grasps=int(K),
         num_trials=int(T),
         prior=problem_mod.prior_kind(head["meta"]),
+        source=source,
     )
 
 
@@ -135,7 +132,7 @@ def _user_problems(paths: Sequence[str], catalog) -> list[ObjectEntry]:
         set_ = str(
             meta.get("set", known[pb.name].set if pb.name in known else "custom")
         )
-        entries.append(_entry(pb.name, set_, oid, p))
+        entries.append(_entry(pb.name, set_, oid, p, "user"))
     names = [e.name for e in entries]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
@@ -169,7 +166,7 @@ def _smoke_problems(names: Sequence[str], catalog, folder: Path) -> list[ObjectE
                 pb, meta={**pb.meta, "synthetic": True, "smoke": True}
             )
             problem_mod.save(pb, path)
-        entries.append(_entry(name, set_, oid, path))
+        entries.append(_entry(name, set_, oid, path, "smoke"))
     return entries
 
 
@@ -201,8 +198,14 @@ def _experiment_plan(
                     "pass problem files with --problems"
                 )
             resolved = _resolve_names(requested or list(mod.OBJECTS), catalog)
+            source = getattr(a, "problem_source", None) or "shipped"
+            if source == "built" and not a.overwrite:
+                _refuse_other_source(name, out, source)
             objects = _catalog_problems(
-                resolved, dry_run=bool(a.dry_run), prior=getattr(mod, "PRIOR", None)
+                resolved,
+                dry_run=bool(a.dry_run),
+                prior=getattr(mod, "PRIOR", None),
+                source=source,
             )
     plan = ExperimentPlan(
         name=name,
@@ -279,14 +282,41 @@ def _missing_problems(names: Sequence[str], params=None) -> list[str]:
     return [i.name for i in precompute.out_of_date(list(names), params=params)]
 
 
+def _refuse_other_source(name: str, out: Path, source: str) -> None:
+    """Refuse, before any problem is built, to add to results that were made from
+    problem files of another source (the shipped set's files never equal files
+    built from the meshes: the encodings differ)."""
+    import json
+
+    mf = out / name / "manifest.json"
+    try:
+        with open(mf) as fh:
+            files = json.load(fh).get("problem_files") or {}
+    except (OSError, json.JSONDecodeError):
+        return
+    other = sorted(
+        {str(f.get("source", "built")) for f in files.values()} - {source, "user"}
+    )
+    if other:
+        raise SweepError(
+            f"{out / name} holds results made from the {other[0]} problem files; "
+            f"--problem-source {source} would run on other files. Run with "
+            f"--problem-source {other[0]} to use those results, or add --overwrite "
+            "to recompute them (or --out DIR for another folder)"
+        )
+
+
 def _catalog_problems(
     resolved: Sequence[tuple[str, str, int]],
     *,
     dry_run: bool = False,
     prior: str | None = None,
+    source: str = "shipped",
 ) -> list[ObjectEntry]:
-    """The problem files of catalogue objects, built when missing; ``prior``: the
-    prior they carry (an experiment's ``PRIOR``; None: the default one)."""
+    """The problem files of catalogue objects: the shipped set's
+    (``source="shipped"``, :mod:`precompute.problemset`), or files built from the
+    meshes on this machine (``"built"``, made when missing); ``prior``: the prior
+    they carry (an experiment's ``PRIOR``; None: the default one)."""
     try:
         import precompute
     except ImportError:  # pragma: no cover - the package ships with legs_jax
@@ -302,9 +332,16 @@ def _catalog_problems(
             params = precompute.BuildParams(prior=prior).check()
         except _precompute_errors() as e:
             raise SweepError(str(e)) from None
-    if dry_run:
-        missing = _missing_problems([n for n, _, _ in resolved], params)
-        if missing:
-            raise _ProblemsMissing(missing)
-    paths = precompute.ensure([n for n, _, _ in resolved], params=params)
-    return [_entry(n, s, oid, paths[n]) for n, s, oid in resolved]
+    names = [n for n, _, _ in resolved]
+    if source == "shipped":
+        from precompute import problemset
+        from precompute.learned import default_prior
+
+        paths = problemset.paths(names, prior or default_prior())
+    else:
+        if dry_run:
+            missing = _missing_problems(names, params)
+            if missing:
+                raise _ProblemsMissing(missing)
+        paths = precompute.ensure(names, params=params)
+    return [_entry(n, s, oid, paths[n], source) for n, s, oid in resolved]

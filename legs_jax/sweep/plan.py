@@ -52,6 +52,9 @@ class ObjectEntry:
     num_grasps: int  # K slots
     num_trials: int  # T in the file
     prior: str = "unknown"  # the prior q the file carries (problem.prior_kind)
+    # where the file comes from: "shipped" (data/problemset), "built" (made from
+    # the meshes on this machine), "user" (--problems) or "smoke"
+    source: str = "built"
 
 
 @dataclasses.dataclass(frozen=True)

@@ -4,7 +4,7 @@ the final tables."""
 
 from __future__ import annotations
 
-import importlib.metadata
+import functools
 import os
 import platform
 import shutil
@@ -19,13 +19,54 @@ from legs_jax.sweep.plan import Chunk, ExperimentPlan, ObjectEntry, SweepError, 
 
 
 def _versions() -> dict[str, str]:
-    out = {"python": platform.python_version()}
-    for pkg in ("legs_jax", "jax", "jaxlib", "numpy", "scipy", "pandas", "pyarrow"):
-        try:
-            out[pkg] = importlib.metadata.version(pkg)
-        except importlib.metadata.PackageNotFoundError:
-            out[pkg] = "not installed"
-    return out
+    """Python, the processor and the packages that can change a result's bits."""
+    from legs_jax._machine import machine
+
+    return {"python": platform.python_version(), **machine()}
+
+
+def _array_digests(o: ObjectEntry) -> dict[str, str]:
+    """SHA-256 of each array the engine reads of ``o``'s problem file (recorded in
+    the manifest, so that a later run can name the arrays that differ)."""
+    return dict(_digests_of(o.path, o.sha256, o.source == "shipped"))
+
+
+@functools.lru_cache(maxsize=256)
+def _digests_of(path: str, sha256: str, shipped: bool) -> tuple[tuple[str, str], ...]:
+    if shipped:
+        from precompute import problemset
+
+        found = problemset.array_digests(Path(path))
+        if found is not None:
+            return tuple(sorted(found.items()))
+    from legs_jax import problem as problem_mod
+
+    try:
+        return tuple(sorted(problem_mod.array_digests(problem_mod.load(path)).items()))
+    except (OSError, problem_mod.ProblemFileError):
+        return ()
+
+
+def _objects_differ(old: Mapping[str, Any], plan: ExperimentPlan) -> str:
+    """The objects whose problem file differs from the one the results in a
+    manifest were made with, and, where both are known, the arrays that differ."""
+    files = old.get("problem_files") or {}
+    parts = []
+    for o in plan.objects:
+        rec = files.get(o.name)
+        if rec is None or rec.get("sha256") == o.sha256:
+            continue
+        before = rec.get("arrays") or {}
+        now = _array_digests(o) if before else {}
+        arrays = sorted(k for k in before if now.get(k) not in (None, before[k]))
+        parts.append(f"{o.name} ({', '.join(arrays)})" if arrays else o.name)
+    if not parts:
+        return ""
+    more = f" and {len(parts) - 8} more" if len(parts) > 8 else ""
+    return (
+        f"; the problem files of {len(parts)} object(s) differ from those the "
+        f"results were made with: {', '.join(parts[:8])}{more}"
+    )
 
 
 def _portable_path(path: str | os.PathLike) -> str:
@@ -181,7 +222,8 @@ def _prepare_dir(plan: ExperimentPlan, out: Path, overwrite: bool, leader: bool)
             diff = _config_diff(old.get("config", {}), plan.config())
             raise SweepError(
                 f"{d} holds results of a different configuration (differs in: "
-                f"{diff}); pass --overwrite to replace them or --out for another folder"
+                f"{diff}){_objects_differ(old, plan)}; pass --overwrite to replace "
+                "them or --out for another folder"
             )
     # Finished chunks of this plan must match it.
     chunks_dir = d / "chunks"
@@ -330,6 +372,8 @@ def _write_manifest(
                 "path": _portable_path(o.path),
                 "sha256": o.sha256,
                 "prior": o.prior,
+                "source": o.source,
+                "arrays": _array_digests(o),
             }
             for o in plan.objects
         },

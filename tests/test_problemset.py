@@ -1,0 +1,131 @@
+"""The problems every machine shares (issue: results checkable on any processor).
+
+- The shipped problem set (``data/problemset``) is intact: every file has the
+  SHA-256 its manifest records, decodes to the arrays whose digests it records,
+  and is the file the committed results were made from (their manifests record
+  the same SHA-256 and array digests).
+- A rebuild of a catalogue object on this machine equals the shipped arrays; a
+  difference is reported array by array.
+- The sweep refuses, before building anything, to add to results made from
+  problem files of another source, and names the objects and arrays that differ.
+- A problem file without a header runs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from legs_jax import problem as pm
+from legs_jax.sweep import cli as sweep_cli
+from legs_jax.synthetic import make_problem
+
+ROOT = Path(__file__).resolve().parent.parent
+SET = ROOT / "data" / "problemset"
+
+needs_set = pytest.mark.skipif(
+    not (SET / "MANIFEST.json").is_file(), reason="no shipped problem set"
+)
+
+
+def _manifest() -> dict:
+    return json.loads((SET / "MANIFEST.json").read_text())
+
+
+def test_sweep_runs_a_problem_file_without_header(tmp_path, capsys) -> None:
+    prob = make_problem(seed=1, num_poses=3, num_grasps=120, num_trials=2)
+    path = tmp_path / "abstract.npz"
+    np.savez(path, **{f: getattr(prob, f) for f in pm._REQUIRED})
+    argv = ["--problems", str(path), "--experiment", "main", "--methods", "legs"]
+    argv += ["--trials", "1", "--rollouts", "1", "--horizon", "20", "--quiet"]
+    code = sweep_cli.main([*argv, "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert (tmp_path / "out" / "main" / "runs.parquet").is_file()
+
+
+@needs_set
+def test_shipped_files_match_their_manifest() -> None:
+    from precompute import catalog, problemset
+
+    man = _manifest()
+    expected = {f"{i.set}/{i.name}.npz" for i in catalog.objects()}
+    expected |= {
+        f"prior-synthetic/{i.set}/{i.name}.npz" for i in catalog.objects("dexnet_adv")
+    }
+    assert set(man["files"]) == expected
+    for rel, rec in man["files"].items():
+        path = SET / rel
+        assert problemset.sha256_file(path) == rec["sha256"], rel
+    # decoding: spot-check a few files' arrays against their recorded digests
+    for rel in sorted(man["files"])[::9]:
+        assert pm.array_digests(pm.load(SET / rel)) == man["files"][rel]["arrays"]
+
+
+@needs_set
+def test_committed_results_were_made_from_the_shipped_set() -> None:
+    """The SHA-256 each results manifest records is the shipped file's; where not,
+    the message names the objects and the arrays that differ."""
+    man = _manifest()["files"]
+    by_path = {f"data/problemset/{rel}": rec for rel, rec in man.items()}
+    wrong = []
+    for mf in sorted((ROOT / "results").glob("*/manifest.json")):
+        files = json.loads(mf.read_text()).get("problem_files", {})
+        for name, rec in files.items():
+            shipped = by_path.get(rec.get("path", ""))
+            if shipped is None:
+                wrong.append(f"{mf.parent.name}/{name}: not a shipped file")
+            elif shipped["sha256"] != rec["sha256"]:
+                arrays = [
+                    k
+                    for k, v in shipped["arrays"].items()
+                    if (rec.get("arrays") or {}).get(k) != v
+                ]
+                wrong.append(f"{mf.parent.name}/{name}: arrays {arrays} differ")
+    assert not wrong, "; ".join(wrong[:10])
+
+
+def test_compare_names_the_arrays_that_differ(tmp_path) -> None:
+    from precompute import problemset
+
+    prob = make_problem(seed=2, num_poses=3, num_grasps=30, num_trials=2)
+    rob = np.rint(prob.robustness * 50) / 50
+    prob = dataclasses.replace(prob, robustness=rob.astype(np.float32))
+    shipped = pm.load(pm.save_compact(prob, tmp_path / "s.npz", samples=50))
+    assert problemset.compare_problems(prob, shipped, 0) == {}
+    rob = prob.robustness.copy()
+    rob[1, 2, 3] += 0.02
+    topple = prob.topple.copy()
+    topple[0] = topple[0][::-1]
+    other = dataclasses.replace(prob, robustness=rob, topple=topple)
+    diff = problemset.compare_problems(other, shipped, 0)
+    assert sorted(diff) == ["robustness", "topple"]
+    assert diff["robustness"].startswith("1 of ")
+
+
+def test_built_source_is_refused_before_building_on_shipped_results(
+    tmp_path, capsys, monkeypatch
+) -> None:
+    """Results made from the shipped set and a run asking for built files: refused
+    at once with the commands to run, and nothing is built."""
+    import precompute
+
+    def no_build(*a, **k):
+        raise AssertionError("built a problem")
+
+    monkeypatch.setattr(precompute, "ensure", no_build)
+    d = tmp_path / "main"
+    d.mkdir()
+    (d / "manifest.json").write_text(
+        json.dumps({"problem_files": {"bar_clamp": {"source": "shipped"}}})
+    )
+    argv = ["--experiment", "main", "--objects", "bar_clamp", "--methods", "legs"]
+    code = sweep_cli.main([*argv, "--problem-source", "built", "--out", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "made from the shipped problem files" in err
+    assert "--problem-source shipped" in err and "--overwrite" in err
