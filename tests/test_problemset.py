@@ -129,3 +129,46 @@ def test_built_source_is_refused_before_building_on_shipped_results(
     assert code == 2
     assert "made from the shipped problem files" in err
     assert "--problem-source shipped" in err and "--overwrite" in err
+
+
+@needs_set
+def test_a_rebuild_here_equals_the_shipped_set() -> None:
+    """Drift check: the smallest catalogue object (G3, 2 poses), rebuilt from its
+    mesh with one reservoir, equals trial 0 of the shipped file in every array
+    (q after the shipped 16-bit quantisation); a difference names the arrays.
+
+    The shipped set was built on an AMD EPYC (AVX2, no AVX-512): on a processor
+    where Embree, NumPy or XLA pick other kernels this is the test that says
+    which arrays a build there would change (the sweep still runs on the
+    shipped files, so no result changes)."""
+    import precompute
+    from precompute import problemset
+    from precompute.build import BuildParams, build_problem
+
+    info = precompute.catalog.lookup("G3")
+    built = build_problem(
+        info.mesh_path,
+        units=info.units,
+        name=info.name,
+        fit=info.fit,
+        set_name=info.set,
+        params=BuildParams(trials=1),
+    )
+    shipped = pm.load(problemset.paths(["G3"])["G3"])
+    first = dataclasses.replace(
+        shipped,
+        **{
+            f: getattr(shipped, f)[:1]
+            for f in (
+                "robustness",
+                "prior",
+                "valid",
+                "grasp_center",
+                "grasp_axis",
+                "grasp_width",
+                "grasp_height",
+            )
+        },
+    )
+    diff = problemset.compare_problems(built, first, 0)
+    assert diff == {}, f"G3 rebuilt here differs from the shipped set: {diff}"
