@@ -190,10 +190,9 @@ def pack(
 
     for prior, info, src in tqdm(todo, desc="ship", unit="obj", disable=not progress):
         pb = problem_mod.load(src)
-        if problem_mod.prior_kind(pb.meta) != prior:
-            raise PrecomputeError(
-                f"{src} carries the {problem_mod.prior_kind(pb.meta)} prior, not {prior}"
-            )
+        kind = problem_mod.prior_kind(pb.meta)
+        if kind != prior:
+            raise PrecomputeError(f"{src} carries the {kind} prior, not {prior}")
         rel = _rel(info, prior)
         g = 1 if info.name in GEOMETRY_OBJECTS else 0
         dst = root / rel
