@@ -18,7 +18,6 @@ import json
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from legs_jax import problem as pm
 from legs_jax.sweep import cli as sweep_cli
@@ -27,9 +26,6 @@ from legs_jax.synthetic import make_problem
 ROOT = Path(__file__).resolve().parent.parent
 SET = ROOT / "data" / "problemset"
 
-needs_set = pytest.mark.skipif(
-    not (SET / "MANIFEST.json").is_file(), reason="no shipped problem set"
-)
 
 
 def _manifest() -> dict:
@@ -48,7 +44,6 @@ def test_sweep_runs_a_problem_file_without_header(tmp_path, capsys) -> None:
     assert (tmp_path / "out" / "main" / "runs.parquet").is_file()
 
 
-@needs_set
 def test_shipped_files_match_their_manifest() -> None:
     from precompute import catalog, problemset
 
@@ -66,7 +61,6 @@ def test_shipped_files_match_their_manifest() -> None:
         assert pm.array_digests(pm.load(SET / rel)) == man["files"][rel]["arrays"]
 
 
-@needs_set
 def test_committed_results_were_made_from_the_shipped_set() -> None:
     """The SHA-256 each results manifest records is the shipped file's; where not,
     the message names the objects and the arrays that differ."""
@@ -131,7 +125,6 @@ def test_built_source_is_refused_before_building_on_shipped_results(
     assert "--problem-source shipped" in err and "--overwrite" in err
 
 
-@needs_set
 def test_a_rebuild_here_equals_the_shipped_set() -> None:
     """Drift check: the smallest catalogue object (G3, 2 poses), rebuilt from its
     mesh with one reservoir, equals trial 0 of the shipped file in every array
