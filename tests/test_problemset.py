@@ -42,6 +42,14 @@ def test_sweep_runs_a_problem_file_without_header(tmp_path, capsys) -> None:
     err = capsys.readouterr().err
     assert code == 0, err
     assert (tmp_path / "out" / "main" / "runs.parquet").is_file()
+    # the manifest names what can change the bits: processor and packages
+    man = json.loads((tmp_path / "out" / "main" / "manifest.json").read_text())
+    versions = man["versions"]
+    for key in ("cpu", "isa", "trimesh", "embreex", "manifold3d", "flax", "jaxlib"):
+        assert versions.get(key), key
+    rec = man["problem_files"]["abstract"]
+    assert rec["source"] == "user"
+    assert rec["arrays"] == pm.array_digests(pm.load(path))
 
 
 def test_shipped_files_match_their_manifest() -> None:
