@@ -59,7 +59,7 @@ def _all_methods() -> tuple[str, ...]:
     return methods.names()
 
 
-def _table_methods() -> tuple[str, ...]:
+def table_methods() -> tuple[str, ...]:
     """Methods of the table (their declaration's ``bench``); the others get a rate
     in the full run (for the projection) or borrow the rate of their
     ``bench_proxy``, a method with the same per-step work."""
@@ -68,7 +68,7 @@ def _table_methods() -> tuple[str, ...]:
     return tuple(m for m in methods.names() if methods.get(m).bench)
 
 
-def _proxy() -> dict[str, str]:
+def proxy() -> dict[str, str]:
     """Method -> the table's method whose rate stands in for it (``bench_proxy``)."""
     from legs_jax import methods
 
@@ -77,15 +77,6 @@ def _proxy() -> dict[str, str]:
         if methods.get(m).bench_proxy:
             out[m] = methods.get(m).bench_proxy
     return out
-
-
-def __getattr__(name: str):
-    # TABLE_METHODS and PROXY, read from the methods' declarations on first use.
-    if name == "TABLE_METHODS":
-        return _table_methods()
-    if name == "PROXY":
-        return _proxy()
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 # Dirichlet checks every this many steps for the methods the main sweep checks
@@ -117,7 +108,7 @@ class Settings:
 
 def _with_table(methods: Sequence[str]) -> tuple[str, ...]:
     """The table's methods always run (the projection borrows their rates)."""
-    return tuple(m for m in _all_methods() if m in methods or m in _table_methods())
+    return tuple(m for m in _all_methods() if m in methods or m in table_methods())
 
 
 # Sizes of a run: (--quick, full).
@@ -140,7 +131,7 @@ _SIZES = dict(
 def settings(quick: bool, methods: Sequence[str] | None) -> Settings:
     """A quick run times the table's methods by default, a full run all of them;
     the NumPy reference also runs on every core in a full run."""
-    default = _table_methods() if quick else _all_methods()
+    default = table_methods() if quick else _all_methods()
     return Settings(
         quick=quick,
         **{k: v[0 if quick else 1] for k, v in _SIZES.items()},
@@ -505,7 +496,7 @@ def projection(rates: dict[str, float]) -> dict[str, Any]:
     """
     import experiments
 
-    proxy = _proxy()
+    proxies = proxy()
     per_exp = {}
     steps_total = 0.0
     seconds = 0.0
@@ -516,7 +507,7 @@ def projection(rates: dict[str, float]) -> dict[str, Any]:
         for method, _variant, hp in mod.ARMS:
             grid = max([len(v) for v in hp.values() if isinstance(v, tuple)] or [1])
             steps = n_obj * mod.TRIALS * mod.ROLLOUTS * mod.HORIZON * grid
-            rate = rates.get(method) or rates[proxy[method]]
+            rate = rates.get(method) or rates[proxies[method]]
             steps_total += steps
             exp_s += steps / rate
         per_exp[name] = round(exp_s / 60.0, 2)
@@ -558,13 +549,13 @@ def projection_by_chunk(
     from legs_jax.sweep import shapes
     from legs_jax.sweep.store import donor_keys
 
-    proxy = _proxy()
+    proxies = proxy()
     measured = sorted(rates_by_poses)
 
     def rate(method: str, poses: int) -> float:
         p = min(measured, key=lambda m: (abs(m - poses), m))
         got = rates_by_poses[p]
-        return got.get(method) or got[proxy[method]]
+        return got.get(method) or got[proxies[method]]
 
     made: set = set()
     per_exp: dict[str, float] = {}
@@ -616,7 +607,7 @@ def run(cfg: Settings, quiet: bool = False) -> dict[str, Any]:
 
     problem = _problem(cfg)
     steps: dict[str, dict[str, float]] = {}
-    table = _table_methods()
+    table = table_methods()
     jax_rates: dict[str, float] = {}
     for method in cfg.methods:
         _say(f"engine: {method} (JAX)", quiet)
@@ -716,7 +707,7 @@ def format_table(r: dict[str, Any]) -> str:
         f" {'NumPy all cores':>16} {'ratio':>7} {'compile':>8}"
     )
     lines.append(header)
-    table = _table_methods()
+    table = table_methods()
     rows = r["steps_per_s"]
     for method in sorted(rows, key=lambda m: (m not in table, m)):
         row = rows[method]

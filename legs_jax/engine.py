@@ -39,6 +39,7 @@ import numpy as np
 from legs_jax import _programs, sampling
 from legs_jax import keys as keys_mod
 from legs_jax import methods as methods_mod
+from legs_jax.constants import DELTA_STOP, NUM_DIRICHLET_SAMPLES
 from legs_jax.errors import ConfigError
 from legs_jax.methods.base import TOP_FIXED, Config, Ctx, Method, Tables
 from legs_jax.problem import ProblemBatch
@@ -60,8 +61,6 @@ __all__ = [
     "trace_counts",
 ]
 
-DELTA_STOP = 0.05  # quantile of the Dirichlet stopping bound (independent of δ)
-NUM_DIRICHLET_SAMPLES = 3000  # M
 
 _TRACES: Counter = Counter()
 

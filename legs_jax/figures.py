@@ -200,7 +200,7 @@ class ObjectData:
 
 
 # ================================================================ plot helpers
-def _plt():
+def pyplot():
     import matplotlib
 
     if matplotlib.get_backend().lower() not in ("agg", "pdf", "svg", "cairo"):
@@ -225,7 +225,7 @@ def _plt():
     return plt
 
 
-def _save(fig, path: Path) -> Path:
+def save_figure(fig, path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=_DPI, metadata=_PNG_META, facecolor="white")
     import matplotlib.pyplot as plt
@@ -234,13 +234,13 @@ def _save(fig, path: Path) -> Path:
     return path
 
 
-def _style(method: str, variant: str) -> dict[str, Any]:
+def method_style(method: str, variant: str) -> dict[str, Any]:
     """The arm's declared line style (its method's, or its variant's)."""
     style = an.arm_declaration(method, variant).get("style")
     return dict(style or dict(color="#8c564b", ls="-", lw=1.4))
 
 
-def _note(ax, text: str) -> None:
+def note_on_axes(ax, text: str) -> None:
     ax.text(
         0.5,
         0.5,
@@ -254,7 +254,7 @@ def _note(ax, text: str) -> None:
     )
 
 
-def _set_label(set_: str) -> str:
+def set_label(set_: str) -> str:
     return an.SET_LABELS.get(set_, set_)
 
 
@@ -268,7 +268,7 @@ def _set_label(set_: str) -> str:
 
 
 # ==================================================================== tables
-def _write_csv(df: pd.DataFrame, path: Path) -> Path:
+def write_csv(df: pd.DataFrame, path: Path) -> Path:
     rp.write_text(path, rp.to_csv(df))
     return path
 
@@ -290,7 +290,7 @@ def appendix_tables(
     horizon = int(runs["horizon"].max()) if "horizon" in runs.columns else None
     text = rp.appendix_table(table, spec, fixed, horizon)
     files = rp.write_pair(experiment, text, out)
-    files.append(_write_csv(table, out / f"{experiment}.csv"))
+    files.append(write_csv(table, out / f"{experiment}.csv"))
     return files, dict(table=table, fixed=fixed, horizon=horizon)
 
 

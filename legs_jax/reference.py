@@ -100,6 +100,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from legs_jax.constants import DELTA_STOP, NUM_DIRICHLET_SAMPLES, Q_CLIP, TOP_FIXED
 from legs_jax.errors import ConfigError
 from legs_jax.problem import Problem
 
@@ -128,11 +129,6 @@ __all__ = [
     "run_rollout",
     "top_truth_choice",
 ]
-
-TOP_FIXED = 100  # candidate set size of BORGES (K=100) and the K100 upper bound
-DELTA_STOP = 0.05  # quantile of the Dirichlet stopping bound
-NUM_DIRICHLET_SAMPLES = 3000  # M
-Q_CLIP = (0.01, 0.99)
 
 
 class RunResult(NamedTuple):

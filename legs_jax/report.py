@@ -196,7 +196,7 @@ def to_csv(df: pd.DataFrame) -> str:
 # ------------------------------------------------------------------ Table I
 
 
-def _horizon_text(horizon: int | None) -> str:
+def horizon_text(horizon: int | None) -> str:
     if horizon is None or horizon == 3000:
         return "H = 3000"
     return f"H = {horizon} (paper: H = 3000)"
@@ -278,7 +278,7 @@ def appendix_table(
         header,
         rows,
         "c" * len(header),
-        caption=caption + f", final optimality gap at {_horizon_text(horizon)}",
+        caption=caption + f", final optimality gap at {horizon_text(horizon)}",
         label=f"tab:appendix-{param}",
         notes=[
             f"Ours: mean ± standard error over the {runs_text} runs (T × R) of "
@@ -325,13 +325,13 @@ def paper_value(mapping: Mapping, *keys):
 _EXPERIMENTS = experiments.EXPERIMENTS
 
 
-def _f(x: float | None, d: int = 3) -> str:
+def fmt(x: float | None, d: int = 3) -> str:
     if x is None or not math.isfinite(x):
         return "n/a"
     return f"{x:.{d}f}"
 
 
-def _pct(x: float | None, d: int = 1) -> str:
+def pct(x: float | None, d: int = 1) -> str:
     if x is None or not math.isfinite(x):
         return "n/a"
     return f"{100 * x:.{d}f} %"
@@ -422,9 +422,9 @@ def appendix_section(ctx: Mapping, spec: Appendix) -> list[str]:
     se_max = float(np.nanmax(bc["se"].to_numpy(float))) if len(bc) else math.nan
     L += [
         f"Best {sym} here: {_param_text(param, best[param])} (gap "
-        f"{_f(float(best['mean']))}); paper: {_param_text(param, paper_best)}. "
+        f"{fmt(float(best['mean']))}); paper: {_param_text(param, paper_best)}. "
         "The spread of the means over the grid is "
-        f"{_f(spread)} against standard errors up to {_f(se_max)}"
+        f"{fmt(spread)} against standard errors up to {fmt(se_max)}"
         + (
             ", so the ranking of the settings is not resolved by these runs."
             if spread < 2 * se_max

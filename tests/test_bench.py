@@ -47,8 +47,8 @@ def test_quick_json_has_every_figure(quick_result):
         assert key in r, key
     for key in REQUIRED[:3] + ("projected_all_minutes",):
         assert _positive(r[key]), (key, r[key])
-    assert set(bench.TABLE_METHODS) <= set(r["steps_per_s"])
-    for method in bench.TABLE_METHODS:
+    assert set(bench.table_methods()) <= set(r["steps_per_s"])
+    for method in bench.table_methods():
         row = r["steps_per_s"][method]
         for key in ("jax", "numpy", "ratio"):
             assert _positive(row[key]), (method, key, row[key])
@@ -71,7 +71,7 @@ def test_projection_adds_up_the_sweep():
         n_obj = bench._count_objects(mod.OBJECTS)
         for method, _, hp in mod.ARMS:
             grid = max([len(v) for v in hp.values() if isinstance(v, tuple)] or [1])
-            rate = rates.get(method) or rates[bench.PROXY[method]]
+            rate = rates.get(method) or rates[bench.proxy()[method]]
             expected_s += n_obj * mod.TRIALS * mod.ROLLOUTS * mod.HORIZON * grid / rate
     assert p["projected_all_minutes"] == pytest.approx(expected_s / 60, rel=1e-3)
     assert sum(p["projected_minutes_per_experiment"].values()) == pytest.approx(

@@ -21,7 +21,7 @@ import pytest
 from legs_jax import engine, keys, methods
 from legs_jax import reference as ref
 from legs_jax.errors import ConfigError
-from legs_jax.methods import conformance
+from legs_jax.methods import _slots, conformance
 from legs_jax.methods import legs as legs_method
 from legs_jax.methods.base import Config, Ctx, prune_mask
 from legs_jax.problem import stack
@@ -382,7 +382,7 @@ def test_legs_prune_and_refill_from_a_given_state():
         next=jnp.asarray(nxt, jnp.int32),
     )
     live = jnp.ones(rows, bool)
-    prune = jax.jit(legs_method.prune, static_argnums=2)
+    prune = jax.jit(_slots.prune_refill, static_argnums=2)
     new, n_removed = prune(st, ctx, cfg, s, live)
     st, new = jax.device_get(st), jax.device_get(new)
     order = np.asarray(tables.order)

@@ -27,7 +27,6 @@ ROOT = Path(__file__).resolve().parent.parent
 SET = ROOT / "data" / "problemset"
 
 
-
 def _manifest() -> dict:
     return json.loads((SET / "MANIFEST.json").read_text())
 

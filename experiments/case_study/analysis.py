@@ -18,13 +18,13 @@ from legs_jax.figures import (
     ObjectData,
     Results,
     Run,
-    _note,
-    _plt,
-    _save,
-    _set_label,
-    _style,
+    method_style,
+    note_on_axes,
+    pyplot,
+    save_figure,
+    set_label,
 )
-from legs_jax.report import _f, _pct
+from legs_jax.report import fmt, pct
 
 
 def _case_study_lines(info: Mapping, main: Mapping | None) -> list[str]:
@@ -54,15 +54,15 @@ def _case_study_lines(info: Mapping, main: Mapping | None) -> list[str]:
             if len(rest):
                 f = rest.loc[rest["final"].idxmin()]
                 a = rest.loc[rest["area"].idxmin()]
-                best_final = f"{_f(float(f['final']))} ({an.arm_label(f['method'])})"
-                best_area = f"{_f(float(a['area']))} ({an.arm_label(a['method'])})"
+                best_final = f"{fmt(float(f['final']))} ({an.arm_label(f['method'])})"
+                best_area = f"{fmt(float(a['area']))} ({an.arm_label(a['method'])})"
         good = o.get("good_fraction")
         set_ = o.get("set", "")
         lines.append(
             f"| {name} | {an.SET_LABELS.get(set_, set_)} | "
             f"{o.get('poses') if o.get('poses') is not None else 'n/a'} | "
-            f"{_pct(good) if good is not None else 'n/a'} | {_f(legs_final)} | "
-            f"{best_final} | {_f(legs_area)} | {best_area} | "
+            f"{pct(good) if good is not None else 'n/a'} | {fmt(legs_final)} | "
+            f"{best_final} | {fmt(legs_area)} | {best_area} | "
             f"{paper_reading.get(name, '—')} |"
         )
     lines += [
@@ -108,7 +108,7 @@ def _draw_object(
     pb, why_pb = data.problem(set_, name)
     if mesh is None:
         info["notes"].append(why_mesh)
-        _note(ax, "no picture:\n" + _wrap_path(why_mesh))
+        note_on_axes(ax, "no picture:\n" + _wrap_path(why_mesh))
         return info
     transform = None
     scale = 1.0
@@ -134,7 +134,7 @@ def _draw_object(
         img = render.render(verts, mesh.faces, size=size)
     except Exception as e:  # noqa: BLE001 - drawing must not stop the report
         info["notes"].append(f"rendering failed ({e})")
-        _note(ax, f"rendering failed:\n{e}")
+        note_on_axes(ax, f"rendering failed:\n{e}")
         return info
     ax.imshow(img.image, interpolation="antialiased")
     ax.set_xlim(-0.5, img.size - 0.5)
@@ -240,7 +240,7 @@ def case_study_figure(
             f"({', '.join(objects)})"
         )
     sets = res.object_sets()
-    plt = _plt()
+    plt = pyplot()
     n = len(present)
     fig = plt.figure(figsize=(12.5, 2.85 * n + 1.2))
     gs = fig.add_gridspec(
@@ -265,14 +265,16 @@ def case_study_figure(
         drawn = _draw_object(ax0, data, set_, name, size=260)
         n_poses = _pose_count(data, res, set_, name)
         obj_info.update(poses=n_poses, notes=drawn["notes"])
-        title = f"{name}\n{_set_label(set_)}"
+        title = f"{name}\n{set_label(set_)}"
         title += f", N = {n_poses} poses" if n_poses is not None else ""
         ax0.set_title(title, fontsize=9.5)
         # --- histogram
         ax1 = fig.add_subplot(gs[i, 1])
         resv = _reservoir(data, res, set_, name)
         if resv is None:
-            _note(ax1, "no reservoir data\n(grasps.parquet and problem file missing)")
+            note_on_axes(
+                ax1, "no reservoir data\n(grasps.parquet and problem file missing)"
+            )
             ax1.set_axis_off()
         else:
             rob, prior, pose = resv
@@ -311,7 +313,7 @@ def case_study_figure(
         lc = an.learning_curves(curves, name)
         finals = {}
         for (m, v), g in lc.groupby(["method", "variant"], sort=False):
-            st = _style(m, v)
+            st = method_style(m, v)
             x = g["step"].to_numpy(float)
             y = g["gap_mean"].to_numpy(float)
             se = np.nan_to_num(g["gap_se"].to_numpy(float))
@@ -352,7 +354,7 @@ def case_study_figure(
     missing = [o for o in objects if o not in present]
     if missing:
         info["missing"] = missing
-    return _save(fig, out / "fig3_case_study.png"), info
+    return save_figure(fig, out / "fig3_case_study.png"), info
 
 
 # None: the case-study object whose LEGS active set changes most (the most
@@ -383,7 +385,7 @@ def active_set_figure(
     set_ = res.object_sets().get(obj, "")
     steps = summary["step"].to_numpy(int)
     first, last = int(steps.min()), int(steps.max())
-    plt = _plt()
+    plt = pyplot()
     from matplotlib import cm, colors
     from matplotlib.collections import LineCollection
 
@@ -494,7 +496,7 @@ def active_set_figure(
         if len(ks) == 1:
             k_text = str(int(ks[0]))
     fig.suptitle(
-        f"LEGS active set on {obj} ({_set_label(set_)}), pose {pose}, trial 0, "
+        f"LEGS active set on {obj} ({set_label(set_)}), pose {pose}, trial 0, "
         f"rollout 0 (initial set: top {k_text} by the {an.prior_kind(res)} prior)",
         fontsize=10,
     )
@@ -505,7 +507,7 @@ def active_set_figure(
         mean_last=float(summary["mean"].iloc[-1]),
         p_star=float(summary["p_star"].iloc[0]) if "p_star" in summary else None,
     )
-    return _save(fig, out / "fig1_active_set.png"), info
+    return save_figure(fig, out / "fig1_active_set.png"), info
 
 
 # ====================================================================== steps
@@ -559,13 +561,13 @@ def _active_set_section(ctx: Mapping) -> list[str]:
             "![Active set of one LEGS rollout over time](figures/fig1_active_set.png)",
             "",
             f"{act['object']}, pose {act['pose']}, trial 0, rollout 0: the best "
-            f"member of the active set goes from p = {_f(act['best_first'], 2)} at "
-            f"step {act['first']} to p = {_f(act['best_last'], 2)} at step "
-            f"{act['last']}, the mean member from {_f(act['mean_first'], 2)} to "
-            f"{_f(act['mean_last'], 2)}"
+            f"member of the active set goes from p = {fmt(act['best_first'], 2)} at "
+            f"step {act['first']} to p = {fmt(act['best_last'], 2)} at step "
+            f"{act['last']}, the mean member from {fmt(act['mean_first'], 2)} to "
+            f"{fmt(act['mean_last'], 2)}"
             + (
                 f"; the best grasp of the pose's reservoir has p* = "
-                f"{_f(act['p_star'], 2)}."
+                f"{fmt(act['p_star'], 2)}."
                 if act.get("p_star") is not None
                 else "."
             ),

@@ -14,8 +14,15 @@ import pandas as pd
 
 from experiments.early_stopping.sweep import CHECK_METHODS, RHO_MIN
 from legs_jax import analysis as an
-from legs_jax.figures import MissingResults, Results, Run, _plt, _save, _write_csv
-from legs_jax.report import Cell, Num, Table, _pct, to_markdown, write_pair
+from legs_jax.figures import (
+    MissingResults,
+    Results,
+    Run,
+    pyplot,
+    save_figure,
+    write_csv,
+)
+from legs_jax.report import Cell, Num, Table, pct, to_markdown, write_pair
 
 # Section 5.4: accuracy and tightness of the stopping bound on the Dex-Net set.
 PAPER_EARLY_STOPPING = {"accuracy": 0.958, "tightness": 0.0297}
@@ -161,7 +168,7 @@ def early_stopping_figure(res: Results, out: Path) -> tuple[Path, dict[str, Any]
     summary = an.bound_summary(checks)
     per_obj = an.bound_summary(checks, by_object=True)
     sens = an.stopping_sensitivity(checks, rho, horizon)
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(12.5, 4.3))
     fig.subplots_adjust(left=0.06, right=0.99, top=0.78, bottom=0.27, wspace=0.3)
     styles = {
@@ -257,7 +264,7 @@ def early_stopping_figure(res: Results, out: Path) -> tuple[Path, dict[str, Any]
         horizon=horizon,
         n_objects=n_obj,
     )
-    return _save(fig, out / "fig4_early_stopping.png"), info
+    return save_figure(fig, out / "fig4_early_stopping.png"), info
 
 
 def early_stopping_tables(info: dict[str, Any], out: Path) -> list[Path]:
@@ -269,7 +276,7 @@ def early_stopping_tables(info: dict[str, Any], out: Path) -> list[Path]:
         out,
     )
     files += write_pair("sensitivity", sensitivity_table(info["sensitivity"]), out)
-    files.append(_write_csv(info["sensitivity"], out / "sensitivity.csv"))
+    files.append(write_csv(info["sensitivity"], out / "sensitivity.csv"))
     return files
 
 
@@ -304,18 +311,18 @@ def _section(ctx: Mapping) -> list[str]:
             )
             p = PAPER_EARLY_STOPPING
             L.append(
-                f"- The paper's bound is a valid lower bound at {_pct(acc)} of the "
-                f"checks (paper {_pct(p['accuracy'])}; target 95 %), "
+                f"- The paper's bound is a valid lower bound at {pct(acc)} of the "
+                f"checks (paper {pct(p['accuracy'])}; target 95 %), "
                 f"{'above' if acc >= 0.95 else 'below'} the nominal 95 %; it lies "
-                f"{_pct(abs(tight), 2)} {'below' if tight >= 0 else 'above'} the "
+                f"{pct(abs(tight), 2)} {'below' if tight >= 0 else 'above'} the "
                 "true performance on average (paper "
-                f"{_pct(p['tightness'], 2)} below)."
+                f"{pct(p['tightness'], 2)} below)."
             )
         if "attempted" in s.index:
             L.append(
                 "- Over attempted grasps only, accuracy is "
-                f"{_pct(float(s.loc['attempted', 'accuracy']))} and tightness "
-                f"{_pct(float(s.loc['attempted', 'tightness']), 2)}: untried grasps "
+                f"{pct(float(s.loc['attempted', 'accuracy']))} and tightness "
+                f"{pct(float(s.loc['attempted', 'tightness']), 2)}: untried grasps "
                 "no longer count at their prior mean."
             )
         a = sens[sens["bound"] == "all"]
@@ -326,10 +333,10 @@ def _section(ctx: Mapping) -> list[str]:
                 L.append(
                     f"- Across ρ_min from {a['rho_min'].min():.2f} to "
                     f"{a['rho_min'].max():.2f}, the accuracy of stopped runs ranges "
-                    f"from {_pct(float(ok['accuracy'].min()))} (at ρ_min = "
+                    f"from {pct(float(ok['accuracy'].min()))} (at ρ_min = "
                     f"{worst['rho_min']:.2f}, {int(worst['n_stopped'])} of "
                     f"{int(worst['n_runs'])} runs stopped) to "
-                    f"{_pct(float(ok['accuracy'].max()))}; "
+                    f"{pct(float(ok['accuracy'].max()))}; "
                     f"the mean stopping step rises from {a['mean_stop_step'].min():.0f}"
                     f" to {a['mean_stop_step'].max():.0f} of H = {es['horizon']}."
                 )

@@ -17,14 +17,14 @@ import pandas as pd
 
 from experiments.early_stopping.analysis import PAPER_EARLY_STOPPING
 from legs_jax import analysis as an
-from legs_jax.figures import Results, Run, _write_csv
+from legs_jax.figures import Results, Run, write_csv
 from legs_jax.report import (
     Cell,
     Num,
     Table,
-    _f,
-    _horizon_text,
-    _pct,
+    fmt,
+    horizon_text,
+    pct,
     to_markdown,
     write_pair,
 )
@@ -114,7 +114,7 @@ def table_one_table(
                     row.append("—")
         rows.append(row)
     notes = [
-        f"Optimality gap at {_horizon_text(horizon)} (lower is better): per object "
+        f"Optimality gap at {horizon_text(horizon)} (lower is better): per object "
         "the mean over its "
         "T × R runs, then mean ± standard error across the objects of the set.",
         f"The prior of every method is {an.prior_words(prior)}, not GQ-CNN "
@@ -128,7 +128,7 @@ def table_one_table(
         header,
         rows,
         align,
-        caption=f"Table I: optimality gap at {_horizon_text(horizon)}, ours beside "
+        caption=f"Table I: optimality gap at {horizon_text(horizon)}, ours beside "
         "the paper's",
         label="tab:table1",
         notes=notes,
@@ -246,7 +246,7 @@ def _table_one_sentences(main: Mapping) -> list[str]:
             if not len(r):
                 continue
             mean, se = float(r["mean"].iloc[0]), float(r["se"].iloc[0])
-            text = f"{an.arm_label(m)} {_f(mean)} ± {_f(se)}"
+            text = f"{an.arm_label(m)} {fmt(mean)} ± {fmt(se)}"
             if paper and m in paper:
                 pm, pse = paper[m]
                 diff = mean - pm
@@ -311,9 +311,9 @@ def _extra_row_lines(d: pd.DataFrame, comp: pd.DataFrame) -> list[str]:
         diff = float(r.mean) - float(low["mean"])
         se = math.hypot(float(r.se), float(low["se"]))
         out.append(
-            f"  Extra row {an.arm_label(r.method)}: {_f(float(r.mean))} ± "
-            f"{_f(float(r.se))}, {'below' if diff < 0 else 'above'} the lowest "
-            f"compared row ({an.arm_label(low['method'])}) by {_f(abs(diff))}, "
+            f"  Extra row {an.arm_label(r.method)}: {fmt(float(r.mean))} ± "
+            f"{fmt(float(r.se))}, {'below' if diff < 0 else 'above'} the lowest "
+            f"compared row ({an.arm_label(low['method'])}) by {fmt(abs(diff))}, "
             f"{'within' if abs(diff) <= se else 'outside'} the combined standard "
             "error."
         )
@@ -363,10 +363,10 @@ def _prior_comparisons(t1) -> list[str]:
             continue
 
         below = [
-            f"{an.arm_label(m)} ({_f(r[0])})" for m, r in rows.items() if me[0] < r[0]
+            f"{an.arm_label(m)} ({fmt(r[0])})" for m, r in rows.items() if me[0] < r[0]
         ]
         above = [
-            f"{an.arm_label(m)} ({_f(r[0])})" for m, r in rows.items() if me[0] > r[0]
+            f"{an.arm_label(m)} ({fmt(r[0])})" for m, r in rows.items() if me[0] > r[0]
         ]
         close = [
             an.arm_label(m)
@@ -374,7 +374,7 @@ def _prior_comparisons(t1) -> list[str]:
             if abs(me[0] - r[0]) <= math.hypot(me[1], r[1])
         ]
         text = (
-            f"On {an.SET_LABELS.get(s, s)}, {an.arm_label(an.PROPOSED)} ({_f(me[0])})"
+            f"On {an.SET_LABELS.get(s, s)}, {an.arm_label(an.PROPOSED)} ({fmt(me[0])})"
         )
         text += " is " + "; ".join(
             x
@@ -396,8 +396,8 @@ def _prior_comparisons(t1) -> list[str]:
                 rb = _row(t1, s, best)
                 gap = "above" if rb[0] > ro[0] else "not above"
                 text += (
-                    f" The lowest compared row, {an.arm_label(best)} ({_f(rb[0])}), "
-                    f"is {gap} the {an.arm_label(o)} ({_f(ro[0])})."
+                    f" The lowest compared row, {an.arm_label(best)} ({fmt(rb[0])}), "
+                    f"is {gap} the {an.arm_label(o)} ({fmt(ro[0])})."
                 )
         paper = sorted(
             (v[0], m) for m, v in PAPER_TABLE1.get(s, {}).items() if m not in oracle
@@ -470,11 +470,11 @@ def _problem_model_section(ctx: Mapping) -> list[str]:
                 continue
             b, a = before.loc[s], after.loc[s]
             L.append(
-                f"| {an.SET_LABELS.get(s, s)} | {_pct(b['frac_good'])} → "
-                f"{_pct(a['frac_good'])} | {_f(b['p_star'])} → {_f(a['p_star'])} | "
-                f"{_f(b['corr'], 2)} → {_f(a['corr'], 2)} | "
-                f"{_f(b['dexnet_gap'])} → {_f(a['dexnet_gap'])} | "
-                f"{_f(b['k100_ub_gap'])} → {_f(a['k100_ub_gap'])} |"
+                f"| {an.SET_LABELS.get(s, s)} | {pct(b['frac_good'])} → "
+                f"{pct(a['frac_good'])} | {fmt(b['p_star'])} → {fmt(a['p_star'])} | "
+                f"{fmt(b['corr'], 2)} → {fmt(a['corr'], 2)} | "
+                f"{fmt(b['dexnet_gap'])} → {fmt(a['dexnet_gap'])} | "
+                f"{fmt(b['k100_ub_gap'])} → {fmt(a['k100_ub_gap'])} |"
             )
         L.append("")
     main = ctx.get("main")
@@ -496,8 +496,8 @@ def _problem_model_section(ctx: Mapping) -> list[str]:
                 now = t1[(t1.set == s) & (t1.method == m) & (t1.variant == v)]
                 old = t1b[(t1b.set == s) & (t1b.method == m) & (t1b.variant == v)]
                 paper = PAPER_TABLE1.get(s, {}).get(m) if not v else None
-                c = (_f(float(old["mean"].iloc[0])) if len(old) else "—") + " → "
-                c += _f(float(now["mean"].iloc[0])) if len(now) else "—"
+                c = (fmt(float(old["mean"].iloc[0])) if len(old) else "—") + " → "
+                c += fmt(float(now["mean"].iloc[0])) if len(now) else "—"
                 c += f" ({paper[0]:.2f})" if paper else ""
                 cells.append(c)
             L.append(f"| {an.arm_label(m, v)} | " + " | ".join(cells) + " |")
@@ -513,9 +513,9 @@ def _problem_model_section(ctx: Mapping) -> list[str]:
             acc_now = float(now.loc["all", "accuracy"])
             L += [
                 "The stopping bound (p̂* over all candidates) was a valid lower "
-                f"bound at {_pct(acc_old)} of the checks before and is at "
-                f"{_pct(acc_now)} now (paper "
-                f"{_pct(PAPER_EARLY_STOPPING['accuracy'])}).",
+                f"bound at {pct(acc_old)} of the checks before and is at "
+                f"{pct(acc_now)} now (paper "
+                f"{pct(PAPER_EARLY_STOPPING['accuracy'])}).",
                 "",
             ]
     return L
@@ -533,7 +533,7 @@ def _before_after_sentences(t1b, t1) -> list[str]:
             if not len(d):
                 continue
             best = d.loc[d["mean"].idxmin()]
-            parts.append(f"{label} {an.arm_label(best.method)} ({_f(best['mean'])})")
+            parts.append(f"{label} {an.arm_label(best.method)} ({fmt(best['mean'])})")
         legs_now = _row(t1, s, an.PROPOSED)
         k100 = _row(t1, s, "borges_100")
         cmp = ""
@@ -547,8 +547,8 @@ def _before_after_sentences(t1b, t1) -> list[str]:
             )
             cmp = (
                 f"; now {an.arm_label(an.PROPOSED)} is {rel} "
-                f"{an.arm_label('borges_100')} ({_f(legs_now[0])} against "
-                f"{_f(k100[0])}, combined standard error {_f(se)})"
+                f"{an.arm_label('borges_100')} ({fmt(legs_now[0])} against "
+                f"{fmt(k100[0])}, combined standard error {fmt(se)})"
             )
         if parts:
             out.append(
@@ -583,7 +583,7 @@ def _discussion(ctx: Mapping) -> list[str]:
                 if mean is not None and paper:
                     rows.append(
                         f"{an.arm_label(m)} on {an.SET_LABELS.get(s, s)}: "
-                        f"{_f(mean)} (paper {paper[0]:.2f})"
+                        f"{fmt(mean)} (paper {paper[0]:.2f})"
                     )
         if rows:
             L += [
@@ -641,7 +641,7 @@ def _discussion(ctx: Mapping) -> list[str]:
                 )
                 L += [
                     f"{an.arm_label('legs_no_as')} ends with exactly the final gap "
-                    f"of {an.arm_label('borges_2000')} in {_pct(same)} of the runs "
+                    f"of {an.arm_label('borges_2000')} in {pct(same)} of the runs "
                     f"(both share the random numbers of a rollout): {reading}.",
                     "",
                 ]
@@ -698,7 +698,7 @@ def _discussion(ctx: Mapping) -> list[str]:
                 "Dex-Net meshes kept at their physical size; the mean p* of each set "
                 "is in `results/precompute/summary.csv`, and gaps are bounded by "
                 "p*. The Dex-Net row is "
-                f"{_f(e)} on EGAD against {_f(d)} on the Dex-Net set "
+                f"{fmt(e)} on EGAD against {fmt(d)} on the Dex-Net set "
                 f"({'lower' if e < d else 'not lower'} on EGAD), where the paper has "
                 f"{paper[0][0]:.2f} and {paper[1][0]:.2f}.",
                 "",
@@ -706,7 +706,7 @@ def _discussion(ctx: Mapping) -> list[str]:
     cs = ctx.get("case_study")
     if cs:
         fr = [
-            f"{k} {_pct(v['good_fraction'])}"
+            f"{k} {pct(v['good_fraction'])}"
             for k, v in cs["objects"].items()
             if v.get("good_fraction") is not None
         ]
@@ -728,8 +728,8 @@ def _discussion(ctx: Mapping) -> list[str]:
             acc = float(s.loc["all", "accuracy"])
             paper_acc = PAPER_EARLY_STOPPING["accuracy"]
             L += [
-                f"The Dirichlet bound is a valid lower bound at {_pct(acc)} of the "
-                f"checks here against {_pct(paper_acc)} in the paper."
+                f"The Dirichlet bound is a valid lower bound at {pct(acc)} of the "
+                f"checks here against {pct(paper_acc)} in the paper."
                 + (" " + _WINNERS_CURSE if acc < paper_acc else ""),
                 "",
             ]
@@ -757,9 +757,9 @@ def main_tables(res: Results, out: Path) -> tuple[list[Path], dict[str, Any]]:
     files += write_pair("table1", table_one_table(t1, horizon, prior), out)
     files += write_pair("wins", wins_table(wins), out)
     files += write_pair("per_object", per_object_table(gaps, win, prior), out)
-    files.append(_write_csv(t1, out / "table1.csv"))
-    files.append(_write_csv(gaps, out / "per_object.csv"))
-    files.append(_write_csv(wins, out / "wins.csv"))
+    files.append(write_csv(t1, out / "table1.csv"))
+    files.append(write_csv(gaps, out / "per_object.csv"))
+    files.append(write_csv(wins, out / "wins.csv"))
     return files, dict(
         gaps=gaps,
         table1=t1,
@@ -827,7 +827,7 @@ def _table_one_section(ctx: Mapping) -> list[str]:
     main = ctx.get("main")
     L = [
         "## Table I: optimality gap at "
-        + _horizon_text(main.get("horizon") if main else None),
+        + horizon_text(main.get("horizon") if main else None),
         "",
     ]
     if main:

@@ -22,8 +22,8 @@ import pandas as pd
 
 from experiments.main.analysis import PAPER_TABLE1, PAPER_WINS
 from legs_jax import analysis as an
-from legs_jax.figures import Results, Run, _write_csv
-from legs_jax.report import Num, Table, _f, _pct, to_markdown, write_pair
+from legs_jax.figures import Results, Run, write_csv
+from legs_jax.report import Num, Table, fmt, pct, to_markdown, write_pair
 
 NAME = "prior_synthetic"
 SET = "dexnet_adv"  # the set this experiment runs
@@ -158,9 +158,9 @@ def _gap_line(cmp: Mapping) -> str | None:
         else f"{abs(diff) / se:.1f} combined standard errors apart"
     )
     return (
-        f"- {an.arm_label(an.PROPOSED)}'s gap is {_f(lrn[0])} with the learned prior "
-        f"and {_f(syn[0])} with the synthetic one: lower with the {which} prior, "
-        f"{verdict} ({_f(se)})."
+        f"- {an.arm_label(an.PROPOSED)}'s gap is {fmt(lrn[0])} with the learned prior "
+        f"and {fmt(syn[0])} with the synthetic one: lower with the {which} prior, "
+        f"{verdict} ({fmt(se)})."
     )
 
 
@@ -179,7 +179,7 @@ def _ranking_line(cmp: Mapping) -> list[str]:
         best = min(rows, key=lambda m: rows[m][0])
         out.append(
             f"- Lowest competitor row with the {kind} prior: {an.arm_label(best)} "
-            f"({_f(rows[best][0])})."
+            f"({fmt(rows[best][0])})."
         )
     return out
 
@@ -190,7 +190,7 @@ def _bound_line(cmp: Mapping) -> str | None:
         b = cmp.get(kind, {}).get("bound")
         if b:
             parts.append(
-                f"{_pct(b['accuracy'])} of {int(b['n_checks'])} checks with the "
+                f"{pct(b['accuracy'])} of {int(b['n_checks'])} checks with the "
                 f"{kind} prior"
             )
     if not parts:
@@ -289,7 +289,7 @@ def _step(run: Run) -> None:
     both = pd.concat(
         [cmp[k]["table1"].assign(prior=k) for k in ("learned", "synthetic") if k in cmp]
     )
-    run.written.append(_write_csv(both, run.tables / "priors.csv"))
+    run.written.append(write_csv(both, run.tables / "priors.csv"))
 
 
 STEPS = (("Table I with each prior", _step),)
@@ -314,9 +314,9 @@ def _quality_lines(q: Mapping) -> list[str]:
     )
     text = (
         f"- On held-out generated objects the network's ROC AUC is "
-        f"{_f(gen['roc_auc'])} (accuracy {_pct(gen['accuracy'])}, GQ-CNN's "
-        f"published {_pct(GQCNN_ACCURACY)}); on the {name} objects it "
-        f"{'falls to' if harder else 'is'} {_f(auc)}: {verdict}"
+        f"{fmt(gen['roc_auc'])} (accuracy {pct(gen['accuracy'])}, GQ-CNN's "
+        f"published {pct(GQCNN_ACCURACY)}); on the {name} objects it "
+        f"{'falls to' if harder else 'is'} {fmt(auc)}: {verdict}"
     )
     return [text]
 

@@ -30,29 +30,42 @@ class FixedState(NamedTuple):
     other_best: jax.Array  # [B, P] f32 best prior mean of the other candidates
 
 
-def init(ctx: Ctx, cfg: Config, *, which: str) -> FixedState:
+def prior_choice(ctx: Ctx, cfg: Config):
+    """Dex-Net's row: argmax q over all valid grasps; (choice [B, P], candidates
+    [B, P, K])."""
     t = ctx.tables
-    q = t.q[ctx.ot]  # [B, P, K]
-    nv = t.n_valid[ctx.ot]  # [B, P]
-    if which == "dexnet":  # argmax q over all valid grasps
-        cand = t.valid[ctx.ot]
-        choice = jnp.where(nv > 0, t.order[ctx.ot][..., 0], -1)
-    else:  # k100_ub: argmax p over the top-100 by q
-        size = cfg.top
-        pos = jnp.arange(size, dtype=jnp.int32)
-        gid = jnp.where(pos < nv[..., None], t.order[ctx.ot][..., :size], -1)
-        p_top = jnp.take_along_axis(t.p[ctx.ot], jnp.maximum(gid, 0), axis=-1)
-        choice = argmin_id_of_max(p_top, gid >= 0, gid)
-        B, P, _ = gid.shape
-        cand = (
-            jnp.zeros((B, P, cfg.num_grasps + 1), bool)
-            .at[
-                jnp.arange(B)[:, None, None],
-                jnp.arange(P)[None, :, None],
-                jnp.where(gid >= 0, gid, cfg.num_grasps),
-            ]
-            .set(True)[..., : cfg.num_grasps]
-        )
+    nv = t.n_valid[ctx.ot]
+    return jnp.where(nv > 0, t.order[ctx.ot][..., 0], -1), t.valid[ctx.ot]
+
+
+def top_truth_choice(ctx: Ctx, cfg: Config):
+    """The K100 upper bound: argmax p over the top ``cfg.top`` grasps by q;
+    (choice [B, P], candidates [B, P, K]: those top grasps)."""
+    t = ctx.tables
+    nv = t.n_valid[ctx.ot]
+    size = cfg.top
+    pos = jnp.arange(size, dtype=jnp.int32)
+    gid = jnp.where(pos < nv[..., None], t.order[ctx.ot][..., :size], -1)
+    p_top = jnp.take_along_axis(t.p[ctx.ot], jnp.maximum(gid, 0), axis=-1)
+    choice = argmin_id_of_max(p_top, gid >= 0, gid)
+    B, P, _ = gid.shape
+    cand = (
+        jnp.zeros((B, P, cfg.num_grasps + 1), bool)
+        .at[
+            jnp.arange(B)[:, None, None],
+            jnp.arange(P)[None, :, None],
+            jnp.where(gid >= 0, gid, cfg.num_grasps),
+        ]
+        .set(True)[..., : cfg.num_grasps]
+    )
+    return choice, cand
+
+
+def init(ctx: Ctx, cfg: Config, *, choose) -> FixedState:
+    """``choose(ctx, cfg)``: the fixed grasp of each pose and the candidate set
+    (:func:`prior_choice`, :func:`top_truth_choice`)."""
+    q = ctx.tables.q[ctx.ot]  # [B, P, K]
+    choice, cand = choose(ctx, cfg)
     a0, b0 = posterior_prior(q, ctx.hp)
     mean0 = a0 / (a0 + b0)
     ids = jnp.arange(cfg.num_grasps, dtype=jnp.int32)

@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from legs_jax import sampling
+from legs_jax.constants import Q_CLIP, TOP_FIXED
 from legs_jax.errors import ConfigError
 
 __all__ = [
@@ -50,9 +51,6 @@ __all__ = [
     "thompson_draw",
     "updated_row",
 ]
-
-Q_CLIP = (0.01, 0.99)  # q is clipped to this range inside the Beta parameters
-TOP_FIXED = 100  # candidate set of BORGES (K=100) and of the K100 upper bound
 
 
 class Tables(NamedTuple):
@@ -288,19 +286,9 @@ def _traced_type(hparams: type, static: tuple[str, ...]) -> type:
 # ----------------------------------------------------------------------- helpers
 
 
-def argmax_first(x: jax.Array, axis: int = -1) -> jax.Array:
-    """Index of the maximum along ``axis``, the lowest one on ties (as np.argmax).
-
-    Written as max, then the smallest index equal to it: faster than
-    ``jnp.argmax`` on CPU.
-    """
-    fn = getattr(sampling, "argmax_first", None)
-    if fn is not None and axis == -1:
-        return fn(x)
-    m = jnp.max(x, axis=axis, keepdims=True)
-    n = x.shape[axis]
-    idx = jax.lax.broadcasted_iota(jnp.int32, x.shape, axis % x.ndim)
-    return jnp.min(jnp.where(x == m, idx, n), axis=axis)
+#: Index of the maximum along an axis, the lowest one on ties (as np.argmax):
+#: :func:`legs_jax.sampling.argmax_first`, faster than ``jnp.argmax`` on CPU.
+argmax_first = sampling.argmax_first
 
 
 def argmin_id_of_max(

@@ -14,7 +14,7 @@ METHOD = Method(
     description="Dex-Net: argmax prior, no exploration (constant gap)",
     **_fixed.CONSTANT_ROW,
     prior_only="greedy",
-    init=lambda ctx, cfg: _fixed.init(ctx, cfg, which="dexnet"),
+    init=lambda ctx, cfg: _fixed.init(ctx, cfg, choose=_fixed.prior_choice),
     candidates=_fixed.candidates_dexnet,
     label="Dex-Net (prior only)",
     short_label="Dex-Net*",

@@ -12,7 +12,7 @@ METHOD = Method(
     description="K100 upper bound: best true grasp of the top-100 by prior (oracle)",
     **_fixed.CONSTANT_ROW,
     prior_only="top",
-    init=lambda ctx, cfg: _fixed.init(ctx, cfg, which="k100_ub"),
+    init=lambda ctx, cfg: _fixed.init(ctx, cfg, choose=_fixed.top_truth_choice),
     candidates=_fixed.candidates_top,
     label="K_s=100 upper bound",
     short_label="K100-UB",

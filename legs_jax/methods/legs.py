@@ -24,10 +24,7 @@ from legs_jax.methods.base import (
     prune_mask,
 )
 
-__all__ = ["METHOD", "LegsHParams", "SlotState", "prune", "prune_mask"]
-
-SlotState = _slots.SlotState
-prune = _slots.prune_refill
+__all__ = ["METHOD", "LegsHParams", "prune_mask"]
 
 
 class LegsHParams(NamedTuple):

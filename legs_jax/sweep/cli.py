@@ -27,6 +27,7 @@ from legs_jax.sweep.hosts import (
     _devices,
     _init_distributed,
     _set_device_flags,
+    _wait_for_chunks,
 )
 from legs_jax.sweep.plan import SMOKE, ExperimentPlan, SweepError, _say
 from legs_jax.sweep.store import (
@@ -399,6 +400,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 )
         if dist.num_processes > 1:
             # Every process has finished its chunks; the leader merges.
+            _wait_for_chunks(dist, plans, out)
             _barrier(dist, "legs_jax-sweep-done")
             for plan in plans:
                 statuses[plan.name] = (

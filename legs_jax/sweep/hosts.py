@@ -72,10 +72,33 @@ def _init_distributed(a: argparse.Namespace) -> _Dist:
 
 
 def _barrier(dist: _Dist, name: str) -> None:
+    """All processes meet here (``jax.experimental.multihost_utils``, JAX's public
+    barrier). Callers make the wait short: see :func:`_wait_for_chunks`."""
     if dist.num_processes == 1:
         return
-    from jax._src import distributed
+    from jax.experimental import multihost_utils
 
-    client = distributed.global_state.client
-    if client is not None:
-        client.wait_at_barrier(name, timeout_in_ms=7 * 24 * 3600 * 1000)
+    multihost_utils.sync_global_devices(name)
+
+
+def _wait_for_chunks(dist: _Dist, plans, out, poll_s: float = 2.0) -> None:
+    """Wait, on the shared output folder, until every chunk of every plan is
+    finished (whichever process computed it), so that the barrier after it is a
+    short one however unequal the processes' shares of the work were."""
+    import time
+
+    from legs_jax import results as res
+    from legs_jax.sweep.store import _exp_dir
+
+    if dist.num_processes == 1:
+        return
+    while True:
+        left = [
+            c.id
+            for p in plans
+            for c in p.chunks
+            if not res.chunk_done(_exp_dir(out, p.name) / "chunks", c.id)
+        ]
+        if not left:
+            return
+        time.sleep(poll_s)
