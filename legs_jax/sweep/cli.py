@@ -323,6 +323,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                     a.quiet,
                 )
                 continue
+            if a.problems and getattr(experiments.get(name), "GENERATED", ()):
+                _say(
+                    f"{name}: runs its own generated problems; skipped with --problems",
+                    a.quiet,
+                )
+                continue
             try:
                 plan = _experiment_plan(name, a, catalog, out)
             except _ProblemsMissing as e:
