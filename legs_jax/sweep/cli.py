@@ -323,9 +323,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                     a.quiet,
                 )
                 continue
-            if a.problems and getattr(experiments.get(name), "GENERATED", ()):
+            generated = [n for n, _ in getattr(experiments.get(name), "GENERATED", ())]
+            others = a.objects and not set(a.objects) & set(generated)
+            if generated and (a.problems or (others and len(names) > 1)):
+                flag = "--problems" if a.problems else "--objects"
                 _say(
-                    f"{name}: runs its own generated problems; skipped with --problems",
+                    f"{name}: runs its own generated problems; skipped with {flag}",
                     a.quiet,
                 )
                 continue
