@@ -82,7 +82,7 @@ def test_smoke_runs_every_experiment(tmp_path):
     wall = time.perf_counter() - t0
     assert p.returncode == 0, p.stderr[-3000:]
     names = list(experiments.EXPERIMENTS)
-    assert "prior_synthetic" in names and len(names) == 6
+    assert "prior_synthetic" in names and "regimes" in names and len(names) == 7
     assert sorted(d.name for d in tmp_path.iterdir() if d.name[0] != "_") == sorted(
         names
     )
@@ -99,8 +99,9 @@ def test_smoke_runs_every_experiment(tmp_path):
         assert set(curves.step) == set(range(0, 201, 10))
         assert (curves.n_runs == 2).all()
         # The curve's last point is the mean final gap of the same runs.
-        last = curves[curves.step == 200].set_index(["object", "method", "s", "delta"])
-        mean = runs.groupby(["object", "method", "s", "delta"]).final_gap.mean()
+        key = ["object", "method", "variant", "s", "delta", "gamma", "k", "n"]
+        last = curves[curves.step == 200].set_index(key)
+        mean = runs.groupby(key).final_gap.mean()
         pd.testing.assert_series_equal(
             last.gap_mean.sort_index(), mean.sort_index(), check_names=False
         )

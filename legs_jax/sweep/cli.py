@@ -333,6 +333,15 @@ def main(argv: Sequence[str] | None = None) -> int:
                     a.quiet,
                 )
                 continue
+            generated = [n for n, _ in getattr(experiments.get(name), "GENERATED", ())]
+            others = a.objects and not set(a.objects) & set(generated)
+            if generated and (a.problems or (others and len(names) > 1)):
+                flag = "--problems" if a.problems else "--objects"
+                _say(
+                    f"{name}: runs its own generated problems; skipped with {flag}",
+                    a.quiet,
+                )
+                continue
             try:
                 plan = _experiment_plan(name, a, catalog, out)
             except _ProblemsMissing as e:

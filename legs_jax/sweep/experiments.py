@@ -170,6 +170,57 @@ def _smoke_problems(names: Sequence[str], catalog, folder: Path) -> list[ObjectE
     return entries
 
 
+_GENERATOR = "legs_jax.families:make_problem"
+
+
+def _generated_problems(
+    families: Sequence[tuple[str, Mapping[str, Any]]],
+    requested: Sequence[str] | None,
+    folder: Path,
+    *,
+    smoke: bool,
+    generator: str = _GENERATOR,
+) -> list[ObjectEntry]:
+    """The problems an experiment generates (``GENERATED``: (name, keyword
+    arguments of ``GENERATOR``), seeded and deterministic), written once into
+    ``folder``; with ``smoke``, the first few at smoke size."""
+    import importlib
+
+    from legs_jax import problem as problem_mod
+
+    known = [n for n, _ in families]
+    if requested:
+        unknown = [r for r in requested if r not in known]
+        if unknown:
+            near = difflib.get_close_matches(unknown[0], known, n=3)
+            hint = f"; did you mean {', '.join(near)}?" if near else ""
+            raise SweepError(
+                f"unknown generated problem '{unknown[0]}' (this experiment "
+                f"generates: {', '.join(known)}){hint}"
+            )
+        families = [f for f in families if f[0] in requested]
+    elif smoke:
+        families = list(families)[: SMOKE["max_objects"]]
+    module, _, attr = generator.partition(":")
+    make = getattr(importlib.import_module(module), attr)
+    entries = []
+    for name, kwargs in families:
+        kw = dict(kwargs)
+        if smoke:
+            kw.update(num_grasps=SMOKE["num_grasps"], num_trials=SMOKE["trials"])
+            if "num_poses" in kw or "effective_poses" in kw:
+                kw["num_poses"] = min(int(kw.get("num_poses", 8)), SMOKE["num_poses"])
+                kw["effective_poses"] = min(
+                    float(kw.get("effective_poses", 1.0)), kw["num_poses"]
+                )
+        path = folder / f"{_safe(name)}.npz"
+        pb = make(name=name, **kw)
+        if not path.is_file() or problem_mod.load(path) != pb:
+            problem_mod.save(pb, path)
+        entries.append(_entry(name, "generated", _name_object_id(name), path))
+    return entries
+
+
 # ===================================================================== experiments
 def _experiment_plan(
     name: str, a: argparse.Namespace, catalog, out: Path
@@ -182,8 +233,17 @@ def _experiment_plan(
     trials = a.trials or (SMOKE["trials"] if a.smoke else mod.TRIALS)
     rollouts = a.rollouts or (SMOKE["rollouts"] if a.smoke else mod.ROLLOUTS)
     horizon = a.horizon or (SMOKE["horizon"] if a.smoke else mod.HORIZON)
+    generated = tuple(getattr(mod, "GENERATED", ()))
     if a.problems:
         objects = _user_problems(a.problems, catalog)
+    elif generated:
+        objects = _generated_problems(
+            generated,
+            list(a.objects) if a.objects else None,
+            out / ("_smoke_problems" if a.smoke else "_generated") / name,
+            smoke=bool(a.smoke),
+            generator=getattr(mod, "GENERATOR", _GENERATOR),
+        )
     else:
         requested = list(a.objects) if a.objects else None
         if a.smoke:
