@@ -184,13 +184,23 @@ def make_problem(
         qc = np.clip(q, 1e-6, 1 - 1e-6)
         q = special.expit(special.logit(qc) + shift)
 
+    # Canonical values, so that the same arguments give the same bytes on every
+    # processor: the transcendental functions above (NumPy's, SciPy's, libm's) may
+    # round differently where they are vectorised differently, by an ulp or so;
+    # p and q on the levels k / 2^20 (exact in float32) and λ on 2^32 integer
+    # levels absorb that (an ulp crosses a level boundary with probability about
+    # 1e-9 per value).
     f32 = np.float32
+    p = _levels(p, 2**20)
+    q = _levels(q, 2**20)
+    lam_int = np.rint(lam * 2.0**32)
+    lam = lam_int / lam_int.sum()
     return Problem(
         name=name if name is not None else f"family-{seed}",
-        landing=(lam / lam.sum()).astype(f32),
+        landing=lam.astype(f32),
         topple=np.tile(lam, (P, 1)).astype(f32),
-        robustness=np.clip(p, 0.0, 1.0).astype(f32),
-        prior=np.clip(q, 0.0, 1.0).astype(f32),
+        robustness=p.astype(f32),
+        prior=q.astype(f32),
         valid=np.ones((T, P, K), bool),
         pose_valid=np.ones(P, bool),
         **_no_geometry((T, P, K)),
@@ -209,6 +219,11 @@ def make_problem(
             ),
         },
     ).validate()
+
+
+def _levels(x: np.ndarray, n: int) -> np.ndarray:
+    """x in [0, 1] rounded to the levels k / n (float64)."""
+    return np.rint(np.clip(x, 0.0, 1.0) * n) / n
 
 
 # ====================================================================== features

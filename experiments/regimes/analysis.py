@@ -18,8 +18,8 @@ import pandas as pd
 
 from experiments.regimes import sweep as decl
 from legs_jax import families
-from legs_jax.figures import MissingResults, Run, _plt, _save, _write_csv
-from legs_jax.report import Num, Table, _f, to_markdown, write_pair
+from legs_jax.figures import MissingResults, Run, pyplot, save_figure, write_csv
+from legs_jax.report import Num, Table, fmt, to_markdown, write_pair
 
 NAME = decl.NAME
 PROPOSED = "legs"
@@ -209,7 +209,7 @@ def regimes_table(s: Mapping[str, Any]) -> Table:
     rows = []
     for name, r in t.iterrows():
         row: list = [name]
-        row += [_f(r[c], 2) for c, _ in FEATURES]
+        row += [fmt(r[c], 2) for c, _ in FEATURES]
         row.append(_num(r.get(f"gap_{PROPOSED}", np.nan), r.get(f"se_{PROPOSED}")))
         row += [
             _num(r.get(f"diff_{b}", np.nan), r.get(f"dse_{b}")) for b, _ in COMPARED
@@ -284,7 +284,7 @@ def _place(values: np.ndarray, levels: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 
 def map_figure(s: Mapping[str, Any], path) -> Any:
-    plt = _plt()
+    plt = pyplot()
     t = s["table"]
     shapes, aucs, xs, ys = _levels(t)
     real = s.get("real")
@@ -352,11 +352,11 @@ def map_figure(s: Mapping[str, Any], path) -> Any:
     note += " (triangles: outside the map, drawn at its edge)"
     fig.suptitle(note, fontsize=8)
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def side_figure(s: Mapping[str, Any], path) -> Any:
-    plt = _plt()
+    plt = pyplot()
     t = s["table"]
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(11.0, 0.28 * len(t) + 1.6))
     y = np.arange(len(t))
@@ -391,7 +391,7 @@ def side_figure(s: Mapping[str, Any], path) -> Any:
     a2.legend(loc="lower right", fontsize=7)
     a2.set_title("LEGS's settings")
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 # ====================================================================== steps
@@ -399,12 +399,12 @@ def _step(run: Run) -> None:
     s = summarise(run)
     run.ctx[NAME] = s
     run.written += write_pair("regimes", regimes_table(s), run.tables)
-    run.written.append(_write_csv(s["table"].reset_index(), run.tables / "regimes.csv"))
+    run.written.append(write_csv(s["table"].reset_index(), run.tables / "regimes.csv"))
     st = settings_table(s)
     if st is not None:
         run.written += write_pair("regimes_settings", st, run.tables)
     if s["real"] is not None:
-        run.written.append(_write_csv(s["real"], run.tables / "regimes_real.csv"))
+        run.written.append(write_csv(s["real"], run.tables / "regimes_real.csv"))
     run.written.append(map_figure(s, run.figures / "regimes_map.png"))
     run.written.append(side_figure(s, run.figures / "regimes_side.png"))
 
@@ -463,15 +463,15 @@ def _real_lines(s: Mapping[str, Any]) -> list[str]:
     d = real["diff_borges_100"]
     line = (
         f"- The {len(real)} real objects (features of their first {REAL_TRIALS} "
-        f"trials; medians): mean p / p* {_f(q['mean_over_best'], 2)} (from "
-        f"{_f(lo, 2)} to {_f(hi, 2)}; the map's shapes span "
-        f"{_f(t['mean_over_best'].min(), 2)} to {_f(t['mean_over_best'].max(), 2)}), "
-        f"{_f(q['count_near'], 1)} grasps within 0.05 of p*, prior C-index "
-        f"{_f(q['auc'], 2)}, calibration bias {_f(q['calibration'], 3)}, "
-        f"{_f(q['effective_poses'], 1)} effective poses and "
-        f"{_f(q['attempts_per_active'], 1)} attempts per active grasp. Their own "
-        f"LEGS − BORGES (K=100) in `main` has median {_f(float(d.median()))} "
-        f"(mean {_f(float(d.mean()))}; {int((d < 0).sum())} of {int(d.notna().sum())} "
+        f"trials; medians): mean p / p* {fmt(q['mean_over_best'], 2)} (from "
+        f"{fmt(lo, 2)} to {fmt(hi, 2)}; the map's shapes span "
+        f"{fmt(t['mean_over_best'].min(), 2)} to {fmt(t['mean_over_best'].max(), 2)}), "
+        f"{fmt(q['count_near'], 1)} grasps within 0.05 of p*, prior C-index "
+        f"{fmt(q['auc'], 2)}, calibration bias {fmt(q['calibration'], 3)}, "
+        f"{fmt(q['effective_poses'], 1)} effective poses and "
+        f"{fmt(q['attempts_per_active'], 1)} attempts per active grasp. Their own "
+        f"LEGS − BORGES (K=100) in `main` has median {fmt(float(d.median()))} "
+        f"(mean {fmt(float(d.mean()))}; {int((d < 0).sum())} of {int(d.notna().sum())} "
         "objects below 0)."
     )
     nearest = _nearest_cell(s)
@@ -498,10 +498,10 @@ def _nearest_cell(s: Mapping[str, Any]) -> str:
     r = t.loc[n]
     return (
         f"The generated problem nearest their median (mean p / p*, C-index) is "
-        f"`{n}`, where LEGS − BORGES (K=100) is {_f(r['diff_borges_100'])} ± "
-        f"{_f(r['dse_borges_100'])} and LEGS − BORGES (K=2000) "
-        f"{_f(r.get('diff_borges_2000', np.nan))} ± "
-        f"{_f(r.get('dse_borges_2000', np.nan))}."
+        f"`{n}`, where LEGS − BORGES (K=100) is {fmt(r['diff_borges_100'])} ± "
+        f"{fmt(r['dse_borges_100'])} and LEGS − BORGES (K=2000) "
+        f"{fmt(r.get('diff_borges_2000', np.nan))} ± "
+        f"{fmt(r.get('dse_borges_2000', np.nan))}."
     )
 
 
@@ -533,8 +533,8 @@ def _section(ctx: Mapping) -> list[str]:
         below, above = _where(t, b)
         i_min, i_max = t[col].idxmin(), t[col].idxmax()
         lines.append(
-            f"- LEGS − {lbl}: from {_f(t.loc[i_min, col])} (`{i_min}`) to "
-            f"{_f(t.loc[i_max, col])} (`{i_max}`); LEGS is lower by more than "
+            f"- LEGS − {lbl}: from {fmt(t.loc[i_min, col])} (`{i_min}`) to "
+            f"{fmt(t.loc[i_max, col])} (`{i_max}`); LEGS is lower by more than "
             f"{Z:g} SE on {len(below)} of {len(t)} problems ({_names(below)}) and "
             f"higher on {len(above)} ({_names(above)})."
         )
@@ -558,7 +558,7 @@ def _section(ctx: Mapping) -> list[str]:
         L += ["", to_markdown(st)]
     hz = s.get("horizons")
     if hz is not None and len(hz) and "borges_100" in hz:
-        parts = [f"{int(r.horizon)}: {_f(r.borges_100)}" for r in hz.itertuples()]
+        parts = [f"{int(r.horizon)}: {fmt(r.borges_100)}" for r in hz.itertuples()]
         L.append(
             "- The horizon: LEGS − BORGES (K=100), averaged over the problems, at H = "
             + ", ".join(parts)
@@ -593,9 +593,9 @@ def _axis_lines(t: pd.DataFrame) -> list[str]:
         out.append(
             "- Along the map's axes, LEGS − BORGES (K=100) averaged over the other "
             "axis: by shape "
-            + ", ".join(f"{k} {_f(v)}" for k, v in by_shape.items())
+            + ", ".join(f"{k} {fmt(v)}" for k, v in by_shape.items())
             + "; by prior C-index "
-            + ", ".join(f"{k:.2f} {_f(v)}" for k, v in by_auc.items())
+            + ", ".join(f"{k:.2f} {fmt(v)}" for k, v in by_auc.items())
             + "."
         )
     side = t.drop(index=main.index, errors="ignore")
@@ -604,7 +604,7 @@ def _axis_lines(t: pd.DataFrame) -> list[str]:
             "- Off the map (calibration, share of excellent grasps, λ's "
             "concentration): "
             + "; ".join(
-                f"`{n}` {_f(r[col])} ± {_f(r['dse_borges_100'])}"
+                f"`{n}` {fmt(r[col])} ± {fmt(r['dse_borges_100'])}"
                 for n, r in side.iterrows()
             )
             + "."

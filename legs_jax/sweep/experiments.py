@@ -217,7 +217,9 @@ def _generated_problems(
         pb = make(name=name, **kw)
         if not path.is_file() or problem_mod.load(path) != pb:
             problem_mod.save(pb, path)
-        entries.append(_entry(name, "generated", _name_object_id(name), path))
+        entries.append(
+            _entry(name, "generated", _name_object_id(name), path, "generated")
+        )
     return entries
 
 
