@@ -66,7 +66,11 @@ def _build_parser() -> argparse.ArgumentParser:
         help="one set: dexnet_adv or egad_eval",
     )
     what.add_argument(
-        "--object", nargs="+", metavar="NAME", help="catalogue objects by name"
+        "--object",
+        nargs="+",
+        action="extend",
+        metavar="NAME",
+        help="catalogue objects by name",
     )
     what.add_argument(
         "--mesh",

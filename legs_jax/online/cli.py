@@ -160,6 +160,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--objects",
         nargs="+",
+        action="extend",
         default=None,
         help="catalogue objects (default: the 13 Dex-Net objects)",
     )
