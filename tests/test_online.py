@@ -461,3 +461,16 @@ def test_a_second_serve_is_refused_as_a_json_line(tmp_path):
     msg = json.loads(line)
     assert msg["ok"] is False and msg["error"]["type"] == "StateError"
     assert "Traceback" not in r.stderr
+
+
+def test_recognition_table_regenerate_line_names_the_objects():
+    """Issue 26, 9: the table's "Regenerate" command gives back the same table:
+    it names --objects when they are not the default 13."""
+    from legs_jax.online.recognition_table import DEXNET_OBJECTS, table_markdown
+
+    row = {"object": "pawn", "poses": 10, "views": 5, "right": 5, "new": 3}
+    row |= {"duplicates": 0, "wrong_merges": 0, "cached": 3, "median_s": 0.1}
+    text = table_markdown([row], 5, 3, ["pawn", "vase"])
+    assert "recognition-table --views 5 --seed 3 --objects pawn vase`" in text
+    text = table_markdown([row], 5, 3, list(DEXNET_OBJECTS))
+    assert "recognition-table --views 5 --seed 3`" in text

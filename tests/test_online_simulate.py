@@ -101,7 +101,7 @@ def test_a_users_mesh_is_skipped_when_current_and_simulated(tmp_path):
     work.mkdir()
     trimesh.creation.box((40.0, 60.0, 30.0)).export(work / "box.stl")
     build = ["precompute", "--mesh", "box.stl", "--units", "mm", "--trials", "1"]
-    build += ["--grasps", "40", "--samples", "5", "--quiet", "--prior", "synthetic"]
+    build += ["--grasps", "100", "--samples", "5", "--quiet", "--prior", "synthetic"]
     r = _run(build, work)
     assert r.returncode == 0, r.stderr
     dest = work / "problems" / "custom" / "box.npz"
