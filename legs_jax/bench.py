@@ -759,6 +759,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--methods",
         nargs="+",
+        action="extend",
         choices=_all_methods(),
         metavar="METHOD",
         help="methods to time besides the table's three (default: none with "

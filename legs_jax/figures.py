@@ -404,6 +404,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--case-objects",
         nargs="+",
+        action="extend",
         default=None,
         metavar="NAME",
         help="objects of Fig. 3 (default: the case_study experiment's objects)",

@@ -73,7 +73,11 @@ def _build_parser() -> argparse.ArgumentParser:
         help="one set: dexnet_adv or egad_eval",
     )
     what.add_argument(
-        "--object", nargs="+", metavar="NAME", help="catalogue objects by name"
+        "--object",
+        nargs="+",
+        action="extend",
+        metavar="NAME",
+        help="catalogue objects by name",
     )
     what.add_argument(
         "--mesh",
@@ -166,6 +170,13 @@ def _build(argv) -> int:
         dest = Path(out) / "custom" / f"{name}.npz"
         tasks = [Task(a.mesh, a.units, name, "custom", dest, a.fit)]
         skipped = []
+        if not a.force and a.mesh.is_file():
+            from .build import build_hash
+            from .mesh import file_sha256
+
+            want = build_hash(file_sha256(a.mesh), a.units, name, params, a.fit)
+            if is_up_to_date(dest, want):
+                tasks, skipped = [], [dest]
     else:
         out = a.out if a.out is not None else problems_dir(prior=prior)
         if a.units is not None:
@@ -202,6 +213,8 @@ def _build(argv) -> int:
             "prior recomputed, poses and grasps kept"
         )
     if not tasks:
+        if a.mesh is not None:
+            print(f"problem file: {skipped[0]}")
         return 0
     jobs = a.jobs if a.jobs is not None else (os.cpu_count() or 1)
     start = time.perf_counter()

@@ -356,7 +356,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="output folder (default: results/precompute)",
     )
     ap.add_argument(
-        "--objects", nargs="+", metavar="NAME", help="objects or sets (default: all)"
+        "--objects",
+        nargs="+",
+        action="extend",
+        metavar="NAME",
+        help="objects or sets (default: all)",
     )
     ap.add_argument("--no-figures", action="store_true", help="tables only")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -396,3 +396,81 @@ def test_resume_refuses_a_run_of_another_kind(tmp_path, capsys):
     args = ["simulate", "--object", "bar_clamp", "--out", str(tmp_path / "s")]
     assert cli.main([*args, "--resume"]) == 2
     assert "not a simulated run" in capsys.readouterr().err
+
+
+def test_protocol_refuses_unknown_fields_and_a_foreign_grasp(tmp_path):
+    """Issue 26, 7: a field the command does not take, or a tell that names
+    another grasp than the pending one, is refused with a JSON error line and
+    records nothing; the session goes on."""
+    reqs = [
+        {"id": 1, "cmd": "observe", "pose": 0},
+        {"id": 2, "cmd": "ask"},
+        {"id": 3, "cmd": "tell", "grasp": 99999, "success": False},
+        {"id": 4, "cmd": "tell", "success": False, "sucess": True},
+        {"id": 5, "cmd": "ask", "pose": 2},
+        {"id": 6, "cmd": "status", "verbose": True},
+        {"id": 7, "cmd": "tell", "grasp": True, "success": True},
+        {"id": 8, "cmd": "status"},
+    ]
+    stdin = io.StringIO("\n".join(json.dumps(r) for r in reqs) + "\n")
+    stdout = io.StringIO()
+    with Session.create(tmp_path / "s", given_poses=given_poses()) as ses:
+        serve(ses, stdin, stdout)
+        grasp = ses.pending_grasp()
+        tells = [r for r in ses.store.records if r["type"] == "tell"]
+    out = {r["id"]: r for r in map(json.loads, stdout.getvalue().splitlines()[1:])}
+    assert out[1]["ok"] and out[2]["ok"] and grasp == out[2]["result"]["grasp"]
+    assert grasp != 99999 and not tells and out[8]["result"]["step"] == 0
+    assert out[3]["error"]["type"] == "OrderError"
+    assert "grasp 99999" in out[3]["error"]["message"]
+    assert f"pending grasp is {grasp}" in out[3]["error"]["message"]
+    for i, field in [(4, "'sucess'"), (5, "'pose'"), (6, "'verbose'")]:
+        assert not out[i]["ok"] and out[i]["error"]["type"] == "InputError"
+        assert f"unknown field(s) {field}" in out[i]["error"]["message"]
+    assert not out[7]["ok"]  # true is not a grasp id
+    # the pending grasp named right is recorded
+    stdin = io.StringIO(
+        json.dumps({"id": 9, "cmd": "tell", "grasp": grasp, "success": True}) + "\n"
+    )
+    stdout = io.StringIO()
+    with Session.open(tmp_path / "s") as ses:
+        ses.observe(pose=0)
+        assert ses.ask()["grasp"] == grasp  # the same draw after a restart
+        serve(ses, stdin, stdout)
+        assert ses.step == 1 and ses.successes == 1
+    assert json.loads(stdout.getvalue().splitlines()[1])["ok"]
+
+
+def test_a_second_serve_is_refused_as_a_json_line(tmp_path):
+    """Issue 26, 7: a second serve on a held session answers in JSON (the robot
+    program reads JSON lines) and exits with status 2."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=str(root))
+    with Session.create(tmp_path / "s", given_poses=given_poses()):
+        r = subprocess.run(
+            [sys.executable, "-m", "legs_jax.online", "serve", str(tmp_path / "s")],
+            input="", capture_output=True, text=True, env=env, timeout=300,
+        )  # fmt: skip
+    assert r.returncode == 2
+    (line,) = r.stdout.splitlines()
+    msg = json.loads(line)
+    assert msg["ok"] is False and msg["error"]["type"] == "StateError"
+    assert "Traceback" not in r.stderr
+
+
+def test_recognition_table_regenerate_line_names_the_objects():
+    """Issue 26, 9: the table's "Regenerate" command gives back the same table:
+    it names --objects when they are not the default 13."""
+    from legs_jax.online.recognition_table import DEXNET_OBJECTS, table_markdown
+
+    row = {"object": "pawn", "poses": 10, "views": 5, "right": 5, "new": 3}
+    row |= {"duplicates": 0, "wrong_merges": 0, "cached": 3, "median_s": 0.1}
+    text = table_markdown([row], 5, 3, ["pawn", "vase"])
+    assert "recognition-table --views 5 --seed 3 --objects pawn vase`" in text
+    text = table_markdown([row], 5, 3, list(DEXNET_OBJECTS))
+    assert "recognition-table --views 5 --seed 3`" in text

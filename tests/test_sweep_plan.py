@@ -816,3 +816,86 @@ def test_projection_by_chunk_charges_each_bucket_its_rate_and_copies_nothing():
     assert minutes(r16, (main, other)) > both * 1.5
     p = bench.projection_by_chunk({8: r8, 16: r16}, [main, again, other], 2)
     assert p["projected_minutes_per_experiment"]["again"] == 0
+
+
+def test_repeated_list_options_add_up():
+    """Issue 26, 1: a list option given twice keeps both (argparse's default
+    would keep only the last and run another grid without a word)."""
+    p = sweep.cli.build_parser()
+    a = p.parse_args(
+        ["--experiment", "main", "--methods", "legs", "--methods", "tql"]
+        + ["--grid", "delta=0.05,0.1", "--grid", "s=1,2"]
+    )
+    sweep.cli._validate_args(p, a)
+    assert a.methods == ["legs", "tql"]
+    assert a.grid == {"delta": (0.05, 0.05, 0.1, 0.1), "s": (1.0, 2.0, 1.0, 2.0)}
+    a = p.parse_args(["--experiment", "main", "--experiment", "confidence"])
+    assert a.experiment == ["main", "confidence"]
+
+
+def test_a_grid_axis_given_twice_is_refused(capsys):
+    p = sweep.cli.build_parser()
+    a = p.parse_args(
+        ["--experiment", "main", "--methods", "legs"]
+        + ["--grid", "s=1", "--grid", "s=2"]
+    )
+    with pytest.raises(SystemExit) as e:
+        sweep.cli._validate_args(p, a)
+    assert e.value.code == 2 and "s given twice" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("chunks", ["kept", "gone"])
+@pytest.mark.parametrize("damage", ["overwrite", "delete_curves"])
+def test_damaged_merged_table_is_merged_again(
+    tmp_path, probs, fake_engine, capsys, damage, chunks
+):
+    """Issue 26, 5: a merged table overwritten or lost is not reported complete:
+    it is named in a warning and merged again from the chunks (or, where the
+    chunks are gone, computed again); the tables then equal an undamaged run's."""
+    base = ["--experiment", "confidence", "--problems", *probs, "--trials", "1"]
+    base += ["--rollouts", "2", "--horizon", "100"]
+    assert _cli([*base, "--out", str(tmp_path / "ref")], capsys)[0] == 0
+    out = tmp_path / "out"
+    assert _cli([*base, "--out", str(out)], capsys)[0] == 0
+    d = out / "confidence"
+    if damage == "overwrite":
+        (d / "runs.parquet").write_bytes((d / "checks.parquet").read_bytes())
+        name = "runs.parquet"
+    else:
+        (d / "curves.parquet").unlink()
+        name = "curves.parquet"
+    if chunks == "gone":
+        shutil.rmtree(d / "chunks")
+    code = sweep.main([*base, "--out", str(out), "--dry-run"])
+    said = capsys.readouterr().out
+    assert code == 0 and f"damaged ({name}" in said and "compute nothing" not in said
+    calls = len(fake_engine)
+    code = sweep.main([*base, "--out", str(out), "--compile-cache", "off"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert f"confidence: the merged tables in {d} are damaged ({name}" in err
+    assert "complete in" not in err and "Traceback" not in err
+    assert (len(fake_engine) > calls) == (chunks == "gone")
+    assert _read_all(out) == _read_all(tmp_path / "ref")
+    # whole again: the next run leaves every file as it is
+    before = _files(out)
+    assert _cli([*base, "--out", str(out)], capsys)[0] == 0
+    assert _files(out) == before
+
+
+def test_dry_run_with_overwrite_says_it_recomputes(
+    tmp_path, probs, fake_engine, capsys
+):
+    """Issue 26, 3: --dry-run --overwrite says what --overwrite does: every chunk
+    computed again, not "complete ... compute nothing"."""
+    args = ["--experiment", "prior_strength", "--problems", probs[0]]
+    args += ["--out", str(tmp_path), "--trials", "3"]
+    assert sweep.main([*args, "--quiet", "--compile-cache", "off"]) == 0
+    capsys.readouterr()
+    before = _files(tmp_path)
+    code = sweep.main([*args, "--dry-run", "--overwrite"])
+    said = capsys.readouterr().out
+    assert code == 0 and "compute nothing" not in said
+    assert "--overwrite: all" in said and "180 rollouts to run" in said
+    assert "deleting the results in it first" in said
+    assert _files(tmp_path) == before

@@ -93,3 +93,25 @@ def test_a_bad_user_method_is_refused_in_one_line(tmp_path, user_package, capsys
         assert says in err and len(err.strip().splitlines()) == 1, err
     assert sweep.main([*base, "--methods", "legs", "--grid", "explore=0.1"]) == 2
     assert "explore is not a hyperparameter of legs" in capsys.readouterr().err
+
+
+def test_a_method_selecting_an_out_of_range_grasp_is_refused_in_one_line(
+    tmp_path, user_package, capsys
+):
+    """Issue 26, 4: a grasp id past the tables (here 1999 of 160) is refused by
+    the conformance check in one line, as NaN estimates are, not an IndexError."""
+    code = _readme_method().replace(
+        "    return grasp, grasp, None",
+        "    grasp = jnp.full_like(grasp, 1999)\n    return grasp, grasp, None",
+    )
+    assert code != _readme_method()
+    (user_package / "far.py").write_text(code)
+    pb = synthetic.make_problem(seed=4, num_poses=3, num_grasps=150, num_trials=1)
+    path = tmp_path / "part.npz"
+    problem.save(pb, path)
+    args = ["--problems", str(path), "--trials", "1", "--out", str(tmp_path / "o")]
+    assert sweep.main([*args, "--methods", "my_pkg.far:METHOD", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1, err
+    assert "fails its conformance check" in err and "grasp 1999, outside 0..159" in err
+    assert not (tmp_path / "o").exists()

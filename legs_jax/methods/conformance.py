@@ -159,6 +159,14 @@ def check(method: Method, horizon: int = 120, rollouts: int = 8) -> None:
         ot_ = np.broadcast_to(np.asarray(ot)[:, None], pose.shape)
         if not np.array_equal(live, valid[ot_, pose].any(-1)):
             _fail(method, "a step was live at a pose without a valid grasp")
+        out_of_range = live & ((grasp < 0) | (grasp >= valid.shape[-1]))
+        if np.any(out_of_range):
+            bad = int(grasp[out_of_range].flat[0])
+            _fail(
+                method,
+                f"it selected grasp {bad}, outside 0..{valid.shape[-1] - 1} "
+                "(the grasp ids of the padded tables)",
+            )
         g = np.where(live, grasp, 0)
         if not np.all(valid[ot_, pose, g][live]):
             _fail(method, "it selected a masked (invalid or padded) grasp")

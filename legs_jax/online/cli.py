@@ -122,8 +122,29 @@ def build_parser() -> argparse.ArgumentParser:
         "object's landing and topple probabilities. Writes the session, "
         "curve.jsonl and learning_curve.png to --out.",
     )
-    p.add_argument("--object", required=True, help="catalogue object, e.g. bar_clamp")
-    p.add_argument("--steps", type=int, default=1000, help="grasp attempts (1000)")
+    p.add_argument(
+        "--object",
+        help="catalogue object (e.g. bar_clamp), a problem file (.npz, e.g. made "
+        "by python -m precompute --mesh) or a mesh file (.obj/.stl/.ply/.off, with "
+        "--units; poses computed from the mesh)",
+    )
+    p.add_argument(
+        "--units",
+        choices=["m", "cm", "mm"],
+        help="length unit of a mesh file given as --object",
+    )
+    p.add_argument(
+        "--fit",
+        choices=["none", "egad"],
+        default="none",
+        help="size rule of a mesh file given as --object (as precompute --mesh)",
+    )
+    p.add_argument(
+        "--steps",
+        type=int,
+        default=None,
+        help="grasp attempts (1000; with --resume, the run's own unless given)",
+    )
     p.add_argument("--out", type=Path, required=True, help="session folder")
     p.add_argument(
         "--resume", action="store_true", help="continue the (killed) run in --out"
@@ -143,7 +164,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--trial", type=int, default=0, help="problem trial (0)")
     p.add_argument(
-        "--eval-every", type=int, default=100, help="curve point every N steps (100)"
+        "--eval-every",
+        type=int,
+        default=None,
+        help="curve point every N steps (default: steps / 50, at most 100; with "
+        "--resume, the run's own unless given)",
     )
     quiet_arg(p)
     _session_args(p)
@@ -160,6 +185,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--objects",
         nargs="+",
+        action="extend",
         default=None,
         help="catalogue objects (default: the 13 Dex-Net objects)",
     )
@@ -258,28 +284,31 @@ def _serve(args) -> int:
     import numpy as np
 
     from legs_jax.online.camera import default_camera_pose
-    from legs_jax.online.protocol import serve
+    from legs_jax.online.protocol import refuse, serve
     from legs_jax.online.session import Session
 
-    if (args.dir / "session.json").exists():
-        session = Session.open(args.dir)
-    else:
-        if args.camera_pose is not None:
-            try:
-                cam = np.load(args.camera_pose, allow_pickle=False)
-            except (OSError, ValueError) as e:
-                raise InputError(f"cannot read --camera-pose: {e}") from None
+    try:
+        if (args.dir / "session.json").exists():
+            session = Session.open(args.dir)
         else:
-            cam = default_camera_pose(args.camera_height)
-        session = Session.create(
-            args.dir,
-            args.method,
-            hparams=_hparams(args.hparam),
-            seed=args.seed,
-            max_poses=args.max_poses,
-            reservoir_size=args.reservoir,
-            camera_pose=cam,
-        )
+            if args.camera_pose is not None:
+                try:
+                    cam = np.load(args.camera_pose, allow_pickle=False)
+                except (OSError, ValueError) as e:
+                    raise InputError(f"cannot read --camera-pose: {e}") from None
+            else:
+                cam = default_camera_pose(args.camera_height)
+            session = Session.create(
+                args.dir,
+                args.method,
+                hparams=_hparams(args.hparam),
+                seed=args.seed,
+                max_poses=args.max_poses,
+                reservoir_size=args.reservoir,
+                camera_pose=cam,
+            )
+    except (InputError, OrderError, StateError, ConfigError) as e:
+        return refuse(e)  # the robot program reads JSON lines, errors too
     with session:
         return serve(session)
 
@@ -298,37 +327,54 @@ def _simulate(args) -> int:
     from legs_jax.online.robot import World
     from legs_jax.online.simulate import Simulation
     from precompute.errors import PrecomputeError
+    from precompute.mesh import _MESH_SUFFIXES
 
-    if args.steps < 1:
+    if args.steps is not None and args.steps < 1:
         raise InputError(f"--steps must be at least 1, got {args.steps}")
-    if args.eval_every < 1:
+    if args.eval_every is not None and args.eval_every < 1:
         raise InputError(f"--eval-every must be at least 1, got {args.eval_every}")
+    if args.object is None and args.problem is None:
+        raise InputError(
+            "name the object: --object NAME|PROBLEM.npz|MESH, or --problem"
+        )
     if not args.resume and (args.out / "session.json").exists():
         raise StateError(
             f"{args.out} already holds a session: add --resume to continue it, or "
             "choose another --out"
         )
+    name, mesh, path = args.object, None, args.problem
+    if name is not None and Path(name).suffix.lower() == ".npz":
+        if path is not None:
+            raise InputError("a problem file twice: as --object and as --problem")
+        name, path = None, Path(name)
+    elif name is not None and Path(name).suffix.lower() in _MESH_SUFFIXES:
+        mesh, name = Path(name), Path(name).stem
+        if not mesh.is_file():
+            raise InputError(f"no such mesh file: {mesh}")
     try:
-        path = args.problem or _find_problem(args.object)
+        if path is None and mesh is None:
+            path = _find_problem(name)
         pb = None
         if path is not None:
             try:
                 pb = problem_mod.load(path)
             except (OSError, ValueError) as e:
                 raise InputError(f"cannot read problem file {path}: {e}") from None
-            if pb.name != args.object:
-                raise InputError(
-                    f"{path} is the problem of {pb.name}, not {args.object}"
-                )
-            world = World.from_problem(pb)
+            if name is not None and mesh is None and pb.name != name:
+                raise InputError(f"{path} is the problem of {pb.name}, not {name}")
+            world = World.from_problem(pb, mesh_path=mesh, problem_path=path)
         else:
             if args.given_poses:
                 raise InputError(
-                    f"--given-poses needs the problem file of {args.object}: build it "
-                    f"with python -m precompute --object {args.object}, or pass "
-                    "--problem"
+                    f"--given-poses needs the problem file of {name}: build it "
+                    f"with python -m precompute, or pass --problem"
                 )
-            world = World.from_mesh(args.object)
+            if mesh is not None:
+                if args.units is None:
+                    raise InputError(f"the mesh {mesh} needs --units (m, cm or mm)")
+                world = World.from_mesh_file(mesh, args.units, args.fit)
+            else:
+                world = World.from_mesh(name)
     except PrecomputeError as e:
         raise InputError(str(e)) from None
     sim = Simulation(
@@ -344,9 +390,10 @@ def _simulate(args) -> int:
         max_poses=args.max_poses,
         reservoir_size=args.reservoir,
         eval_every=args.eval_every,
+        steps=args.steps,
     )
     try:
-        sim.run(args.steps, progress=not args.quiet)
+        sim.run(sim.steps, progress=not args.quiet)
         fig = sim.figure()
         last = sim.curve[-1]
         print(

@@ -6,7 +6,7 @@ One request per line on stdin, one response per line on stdout, in order::
      "intrinsics": {"fx": 525, "fy": 525, "cx": 319.5, "cy": 239.5,
                     "width": 640, "height": 480}}
     {"id": 2, "cmd": "ask"}
-    {"id": 3, "cmd": "tell", "success": true}
+    {"id": 3, "cmd": "tell", "success": true}   (optional "grasp": the asked id)
     {"id": 4, "cmd": "bound", "rho_min": 0.9}
     {"id": 5, "cmd": "status"}
     {"id": 6, "cmd": "quit"}
@@ -16,8 +16,11 @@ A depth image is ``{"npy": PATH}`` (a ``.npy`` file of metres) or inline
 "scale": metres per unit}`` (little-endian, row-major; 0 or NaN: no reading).
 Responses are ``{"id": ..., "ok": true, "result": {...}}`` or ``{"id": ...,
 "ok": false, "error": {"type": ..., "message": ...}}``; an error changes nothing.
+A field that the command does not take is refused (:data:`FIELDS`).
 The first line written is ``{"ok": true, "ready": {...}}`` once the session is
-open (created, or resumed with every recorded outcome).
+open (created, or resumed with every recorded outcome), or ``{"ok": false,
+"error": {...}}`` when it cannot be opened (another process holds it, a damaged
+folder), and the process exits with status 2.
 """
 
 from __future__ import annotations
@@ -33,9 +36,21 @@ from legs_jax.errors import ConfigError
 from legs_jax.online.errors import InputError, OrderError, StateError
 from legs_jax.online.session import Session
 
-__all__ = ["decode_depth", "handle", "serve"]
+__all__ = ["FIELDS", "decode_depth", "handle", "refuse", "serve"]
 
 _DTYPES = {"float32": "<f4", "float64": "<f8", "uint16": "<u2"}
+
+# The fields each request may carry: any other is refused (a misspelt or
+# foreign field is never ignored). ``tell``'s optional ``grasp`` must be the
+# pending grasp's id.
+FIELDS = {
+    "observe": ("depth", "intrinsics", "pose"),
+    "ask": (),
+    "tell": ("success", "grasp"),
+    "bound": ("rho_min",),
+    "status": (),
+    "quit": (),
+}
 
 
 def decode_depth(spec) -> np.ndarray:
@@ -86,6 +101,14 @@ def handle(session: Session, req) -> dict:
         if not isinstance(req, dict):
             raise InputError("a request is a JSON object")
         cmd = req.get("cmd")
+        if cmd in FIELDS:
+            extra = sorted(set(req) - {"id", "cmd", *FIELDS[cmd]})
+            if extra:
+                takes = ", ".join(FIELDS[cmd]) or "no other field"
+                raise InputError(
+                    f"unknown field(s) {', '.join(map(repr, extra))} for {cmd} "
+                    f"(it takes id, cmd and {takes}); nothing was done"
+                )
         if cmd == "observe":
             if "pose" in req:
                 result = session.observe(pose=req["pose"])
@@ -98,6 +121,17 @@ def handle(session: Session, req) -> dict:
         elif cmd == "tell":
             if "success" not in req:
                 raise InputError('tell needs "success": true or false')
+            if "grasp" in req:
+                pending = session.pending_grasp()
+                if pending is None:
+                    raise OrderError(
+                        "tell without a pending ask: ask for a grasp first"
+                    )
+                if isinstance(req["grasp"], bool) or req["grasp"] != pending:
+                    raise OrderError(
+                        f"tell names grasp {req['grasp']!r}, but the pending grasp "
+                        f"is {pending}; nothing was recorded"
+                    )
             result = session.tell(req["success"])
         elif cmd == "bound":
             result = session.bound(req.get("rho_min"))
@@ -116,6 +150,17 @@ def handle(session: Session, req) -> dict:
             "error": {"type": type(e).__name__, "message": str(e)},
         }
     return {"id": rid, "ok": True, "result": result}
+
+
+def refuse(error: Exception, stdout=None) -> int:
+    """The session could not be opened (held by another process, damaged, bad
+    arguments): say so as the first line, in JSON like every other answer;
+    returns the exit status 2."""
+    stdout = stdout or sys.stdout
+    err = {"type": type(error).__name__, "message": str(error)}
+    stdout.write(json.dumps({"ok": False, "error": err}) + "\n")
+    stdout.flush()
+    return 2
 
 
 def serve(session: Session, stdin=None, stdout=None) -> int:

@@ -28,7 +28,8 @@ histogram of distance from the centroid's vertical × height) are aligned in ful
 on those views the right pose was always first or second by descriptor, and it
 keeps recognition time flat in the number of cached poses.
 
-Nearest neighbours come from SciPy's ``cKDTree`` (one tree per cached pose).
+Nearest neighbours come from SciPy's ``cKDTree`` (one tree per cached pose, kept in
+memory; queried on every core).
 """
 
 from __future__ import annotations
@@ -65,6 +66,9 @@ _DESC_BINS = 25  # 4 mm bins over 10 cm
 ICP_ITERATIONS = 15
 ICP_KEEP = 0.8
 _CAP = 0.02  # distances are capped here in the chamfer score (outliers)
+# KD-tree queries on every core: the yaw search's queries are 87 % of a
+# recognition (profiled on a simulated run, BENCHMARKS.md); the same answers
+_WORKERS = -1
 
 
 def object_cloud(
@@ -119,7 +123,7 @@ class Match:
 
 
 def _score(tree: cKDTree, pts: np.ndarray) -> np.ndarray:
-    d, _ = tree.query(pts, distance_upper_bound=_CAP)
+    d, _ = tree.query(pts, distance_upper_bound=_CAP, workers=_WORKERS)
     return np.minimum(d, _CAP)
 
 
@@ -127,7 +131,7 @@ def _planar_icp(src: np.ndarray, tree: cKDTree, dst: np.ndarray, R, t):
     """Trimmed ICP with a yaw rotation and a 3-D translation, from (R, t)."""
     for _ in range(ICP_ITERATIONS):
         cur = src @ R.T + t
-        d, j = tree.query(cur)
+        d, j = tree.query(cur, workers=_WORKERS)
         keep = d <= np.quantile(d, ICP_KEEP)
         a, b = src[keep], dst[j[keep]]
         ma, mb = a.mean(0), b.mean(0)

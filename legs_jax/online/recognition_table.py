@@ -87,12 +87,18 @@ def evaluate_object(world: World, views: int, seed: int, on_view=None) -> dict:
     }
 
 
-def table_markdown(rows: list[dict], views: int, seed: int) -> str:
+def table_markdown(
+    rows: list[dict], views: int, seed: int, objects: list[str] | None = None
+) -> str:
+    """The markdown table; ``objects``: the names asked for (default: the 13
+    Dex-Net objects), written into its "Regenerate" command."""
+    names = list(objects) if objects else list(DEXNET_OBJECTS)
+    chosen = "" if names == list(DEXNET_OBJECTS) else " --objects " + " ".join(names)
     lines = [
         "# Pose recognition on simulated views",
         "",
         "Regenerate: `python -m legs_jax.online recognition-table "
-        f"--views {views} --seed {seed}`.",
+        f"--views {views} --seed {seed}{chosen}`.",
         "",
         "Per object: its stable poses from the mesh (the model of `precompute/`), "
         f"{views} simulated overhead depth images (640×480, fx = fy = 525 px, camera "
@@ -161,7 +167,7 @@ def main(args) -> int:
         )
     if bar is not None:
         bar.close()
-    text = table_markdown(rows, args.views, args.seed)
+    text = table_markdown(rows, args.views, args.seed, names)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)

@@ -56,25 +56,64 @@ class World:
     def from_mesh(cls, name: str) -> World:
         """Poses of catalogue object ``name`` computed from its mesh."""
         import precompute
+
+        info = precompute.catalog.lookup(name)
+        return cls.from_mesh_file(info.mesh_path, info.units, info.fit, name=name)
+
+    @classmethod
+    def from_mesh_file(
+        cls, path, units: str, fit: str = "none", name: str | None = None
+    ) -> World:
+        """Poses of the mesh file at ``path`` (``units``, size rule ``fit`` as
+        ``precompute --mesh`` takes them) computed from the mesh; named after the
+        file unless ``name`` is given."""
+        from pathlib import Path
+
         from precompute import poses as _poses
         from precompute.mesh import load_mesh
 
-        info = precompute.catalog.lookup(name)
-        mesh = load_mesh(info.mesh_path, info.units)
+        mesh = load_mesh(path, units, fit)
         hull = _poses.hull_model(mesh.vertices, mesh.faces, mesh.center_mass)
         sp = _poses.stable_poses(hull, mesh.vertices, mesh.faces)
         topple = _poses.topple_matrix(hull, sp)
         topple = topple / topple.sum(axis=1, keepdims=True)
-        return cls(name, mesh.vertices, mesh.faces, sp.transforms, sp.landing, topple)
+        return cls(
+            name or Path(path).stem,
+            mesh.vertices,
+            mesh.faces,
+            sp.transforms,
+            sp.landing,
+            topple,
+        )
 
     @classmethod
-    def from_problem(cls, problem) -> World:
-        """The poses of a problem file (its object's mesh from the catalogue)."""
+    def from_problem(cls, problem, mesh_path=None, problem_path=None) -> World:
+        """The poses of a problem file and its object's mesh: ``mesh_path``, else
+        the catalogue's mesh of that name, else the file the problem was built
+        from (its ``meta["mesh_file"]``, looked for beside the problem file and
+        from the current folder); the mesh must be the one the problem was built
+        from (its SHA-256)."""
+        from pathlib import Path
+
         import precompute
+        from precompute.errors import PrecomputeError
         from precompute.mesh import load_mesh
 
-        info = precompute.catalog.lookup(problem.name)
-        mesh = load_mesh(info.mesh_path, info.units)
+        meta = problem.meta
+        units, fit = meta.get("units", "m"), meta.get("fit", "none")
+        if mesh_path is None:
+            try:
+                info = precompute.catalog.lookup(problem.name)
+                mesh_path, units, fit = info.mesh_path, info.units, info.fit
+            except PrecomputeError:
+                mesh_path = _find_mesh(problem, problem_path)
+        mesh = load_mesh(mesh_path, units, fit)
+        want = meta.get("mesh_sha256")
+        if want is not None and mesh.sha256 != want:
+            raise PrecomputeError(
+                f"{Path(mesh_path)} is not the mesh the problem of {problem.name} "
+                "was built from (its SHA-256 differs)"
+            )
         keep = np.flatnonzero(problem.pose_valid)
         return cls(
             problem.name,
@@ -92,6 +131,30 @@ class World:
         v = self.vertices @ tf[:3, :3].T + tf[:3, 3]
         caster = RayCaster(v, self.faces)
         return caster, G.height_map(caster)
+
+
+def _find_mesh(problem, problem_path=None):
+    """The mesh file a problem file of the user's own (``precompute --mesh``) was
+    built from: its recorded name beside the problem file, two folders up (the
+    folder ``precompute --mesh`` ran from) or in the current folder."""
+    from pathlib import Path
+
+    from precompute.errors import PrecomputeError
+
+    recorded = problem.meta.get("mesh_file")
+    where = [Path.cwd()]
+    if problem_path is not None:
+        folder = Path(problem_path).resolve().parent
+        where = [folder, folder.parent.parent, *where]
+    if recorded:
+        for base in where:
+            for cand in (base / recorded, base / Path(recorded).name):
+                if cand.is_file():
+                    return cand
+    raise PrecomputeError(
+        f"cannot find the mesh of {problem.name!r} (recorded as {recorded!r}): "
+        "give it as --object MESH beside --problem"
+    )
 
 
 class SimRobot:

@@ -354,6 +354,10 @@ class Session:
         self._pending = {"grasp": grasp, "slot": slot, "answer": answer}
         return answer
 
+    def pending_grasp(self) -> int | None:
+        """The id of the grasp asked for and not yet told, or None."""
+        return None if self._pending is None else int(self._pending["grasp"])
+
     def tell(self, success) -> dict:
         """Record the outcome of the asked grasp (True: the object was lifted)."""
         if not isinstance(success, (bool, np.bool_)):

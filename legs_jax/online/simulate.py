@@ -30,7 +30,7 @@ from legs_jax.online.robot import SimRobot, World
 from legs_jax.online.session import Session
 from legs_jax.online.store import atomic_write
 
-__all__ = ["EVAL_SAMPLES", "Simulation", "save_figure"]
+__all__ = ["EVAL_SAMPLES", "Simulation", "default_eval_every", "save_figure"]
 
 EVAL_SAMPLES = 50
 _RENDER, _EXECUTE, _MOVE, _EVAL = 0, 1, 2, 3
@@ -53,14 +53,14 @@ class Simulation:
         hparams=None,
         max_poses: int = 24,
         reservoir_size: int = 2000,
-        eval_every: int = 100,
+        eval_every: int | None = None,
+        steps: int | None = None,
     ):
         self.folder = Path(folder)
         self.world = world
         self.seed = seed
         self.problem = problem
         self.trial = trial
-        self.eval_every = eval_every
         self.robot = SimRobot(world, np.random.default_rng(0))
         if given_poses and problem is None:
             raise InputError("given poses need a problem file (its reservoirs)")
@@ -84,6 +84,21 @@ class Simulation:
             self.seed = seed = int(info["seed"])
             self.trial = trial = int(info["trial"])
             self.given = bool(info["given_poses"])
+            # the run's own length and curve step, unless given anew
+            self.steps = int(steps if steps is not None else info.get("steps", 1000))
+            self.eval_every = int(
+                eval_every
+                if eval_every is not None
+                else info.get("eval_every", default_eval_every(self.steps))
+            )
+            if (info.get("steps"), info.get("eval_every")) != (
+                self.steps,
+                self.eval_every,
+            ):
+                info.update(steps=self.steps, eval_every=self.eval_every)
+                atomic_write(
+                    self.folder / "simulation.json", (json.dumps(info) + "\n").encode()
+                )
         else:
             given = None
             if given_poses:
@@ -98,12 +113,17 @@ class Simulation:
                 given_poses=given,
                 note=f"simulated robot: {world.name}",
             )
+            self.steps = int(steps if steps is not None else 1000)
+            self.eval_every = int(
+                eval_every if eval_every is not None else default_eval_every(self.steps)
+            )
             info = {
                 "object": world.name,
                 "seed": seed,
                 "trial": trial,
                 "given_poses": bool(given_poses),
-                "eval_every": eval_every,
+                "steps": self.steps,
+                "eval_every": self.eval_every,
             }
             atomic_write(
                 self.folder / "simulation.json", (json.dumps(info) + "\n").encode()
@@ -277,15 +297,22 @@ class Simulation:
         path = Path(path or self.folder / "learning_curve.png")
         steps = [r["step"] for r in self.curve]
         fig, ax = plt.subplots(figsize=(6.4, 4.0))
+        # markers: each point is a measurement, the lines only join them
+        mark = {"marker": "o", "markersize": 2.5}
         ax.plot(
             steps,
             [r["performance"] for r in self.curve],
             label="true success rate of π_t",
+            **mark,
         )
         if self.curve and "gap" in self.curve[0]:
-            ax.plot(steps, [r["gap"] for r in self.curve], label="gap Δ_t")
+            ax.plot(steps, [r["gap"] for r in self.curve], label="gap Δ_t", **mark)
         ax.plot(
-            steps, [r["p_lower"] for r in self.curve], "--", label="Dirichlet bound p̂_ℓ"
+            steps,
+            [r["p_lower"] for r in self.curve],
+            "--",
+            label="Dirichlet bound p̂_ℓ",
+            **mark,
         )
         ax.set_xlabel("grasp attempts")
         ax.set_ylim(0, 1)
@@ -299,6 +326,13 @@ class Simulation:
 
     def close(self) -> None:
         self.session.close()
+
+
+def default_eval_every(steps: int) -> int:
+    """The curve step when none is given: 50 points over the run, at most every
+    100 steps (a curve point with recognition costs ``EVAL_SAMPLES`` executions
+    per pose)."""
+    return max(1, min(100, steps // 50))
 
 
 def _problem_poses(problem, trial: int) -> dict[int, dict[str, np.ndarray]]:

@@ -33,9 +33,11 @@ from legs_jax.sweep.plan import SMOKE, ExperimentPlan, SweepError, _say
 from legs_jax.sweep.store import (
     _chunk_ok,
     _complete_and_current,
+    _damaged_tables,
     _exp_dir,
     _merged_without_chunks,
     _prepare_dir,
+    _warn_damaged_tables,
 )
 
 # ====================================================================== arguments
@@ -83,17 +85,21 @@ _nonneg_int = _int_at_least(0)
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=_PROG, description=_DESCRIPTION, epilog=_EPILOG)
+    # Every list option is action="extend": given twice, its values add up
+    # (argparse's default keeps only the last, silently running another grid).
     what = p.add_argument_group("what to run")
     what.add_argument("--all", action="store_true", help="run every experiment")
     what.add_argument(
         "--experiment",
         nargs="+",
+        action="extend",
         metavar="NAME",
         help=f"experiments to run: {', '.join(EXPERIMENTS)}",
     )
     what.add_argument(
         "--objects",
         nargs="+",
+        action="extend",
         metavar="NAME",
         help="run on these objects or sets (dexnet_adv, egad_eval) instead of each "
         "experiment's own list; problem files are built when missing",
@@ -101,6 +107,7 @@ def build_parser() -> argparse.ArgumentParser:
     what.add_argument(
         "--problems",
         nargs="+",
+        action="extend",
         metavar="PATH",
         help="run on these problem files (e.g. made by precompute --mesh) instead "
         "of the catalogue objects",
@@ -117,6 +124,7 @@ def build_parser() -> argparse.ArgumentParser:
     what.add_argument(
         "--methods",
         nargs="+",
+        action="extend",
         metavar="NAME",
         help="run only these methods (separated by spaces or commas): registered "
         "names (python -c 'from legs_jax import methods; print(methods.names())') "
@@ -127,6 +135,7 @@ def build_parser() -> argparse.ArgumentParser:
     what.add_argument(
         "--grid",
         nargs="+",
+        action="extend",
         metavar="NAME=V1,V2",
         help="run the --methods that have these hyperparameters on this grid (every "
         "combination of the values, as one batch axis: one compile), e.g. --grid "
@@ -261,12 +270,24 @@ def _check_user_methods(plans: Sequence[ExperimentPlan], quiet: bool) -> None:
         conformance.check(methods.get(name))
 
 
-def _print_plan(plan: ExperimentPlan, out: Path) -> None:
+def _print_plan(plan: ExperimentPlan, out: Path, overwrite: bool = False) -> None:
     """What the run would do: nothing for a complete experiment (as the run
-    decides it), a refusal for another configuration, else the chunks to run."""
+    decides it), a refusal for another configuration, else the chunks to run;
+    with ``overwrite``, every chunk, after deleting what is there."""
     import json
 
     d = _exp_dir(out, plan.name)
+    if overwrite:
+        gone = " (deleting the results in it first)" if d.exists() else ""
+        print(
+            f"{plan.name}: {len(plan.objects)} object(s), {len(plan.arms)} arm(s), "
+            f"T={plan.trials} R={plan.rollouts} H={plan.horizon}, "
+            f"--overwrite: all {len(plan.chunks)} chunk(s), "
+            f"{sum(c.rollouts for c in plan.chunks)} rollouts to run -> {d}{gone}"
+        )
+        for c in plan.chunks:
+            print(f"  {c.id}: {c.rollouts} rollouts, P={c.num_poses} K={c.num_grasps}")
+        return
     try:
         with open(d / "manifest.json") as fh:
             old = json.load(fh)
@@ -278,6 +299,10 @@ def _print_plan(plan: ExperimentPlan, out: Path) -> None:
             "would refuse them (--overwrite replaces them, --out writes elsewhere)"
         )
         return
+    if old is not None and old.get("status") == "complete":
+        why = _damaged_tables(d, old)
+        if why is not None:
+            print(f"{plan.name}: the merged tables in {d} are damaged ({why})")
     if old is not None and (
         _merged_without_chunks(plan, out) or _complete_and_current(plan, out)
     ):
@@ -361,7 +386,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise SweepError("no experiment left to run with the selected methods")
         if a.dry_run:
             for plan in plans:
-                _print_plan(plan, out)
+                _print_plan(plan, out, a.overwrite)
             return 0
         _check_user_methods(plans, a.quiet)
         # Refuse conflicting results of any experiment before running anything
@@ -372,6 +397,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         started = True
         t0 = time.perf_counter()
         statuses, sessions = {}, {}
+        for plan in plans:
+            _warn_damaged_tables(plan, out)
         kept = [p.name for p in plans if _merged_without_chunks(p, out)]
         for name in kept:
             _say(

@@ -257,7 +257,7 @@ def _merged_without_chunks(plan: ExperimentPlan, out: Path) -> bool:
     files = old.get("problem_files") or {}
     return (
         old.get("status") == "complete"
-        and (d / "runs.parquet").is_file()
+        and _damaged_tables(d, old) is None
         and all(
             (files.get(o.name) or {}).get("sha256") == o.sha256 for o in plan.objects
         )
@@ -303,9 +303,63 @@ def _complete_and_current(plan: ExperimentPlan, out: Path) -> bool:
     return (
         old.get("status") == "complete"
         and old.get("config_hash") == res.config_hash(plan.config())
-        and (d / "runs.parquet").is_file()
+        and _damaged_tables(d, old) is None
         and all(_chunk_ok(d / "chunks", c.id) for c in plan.chunks)
     )
+
+
+def _damaged_tables(d: Path, manifest: Mapping[str, Any]) -> str | None:
+    """Why the merged tables of a complete experiment in ``d`` cannot be trusted
+    (a table missing, or not the file the merge wrote: its SHA-256 is in the
+    manifest's ``tables``), or None when they are whole. A manifest written
+    before the tables' hashes were recorded is checked by reading each table's
+    parquet footer."""
+    recorded = manifest.get("tables")
+    if not isinstance(recorded, Mapping):
+        import pyarrow.parquet as pq
+
+        recorded = {"runs.parquet": None} | {
+            f"{t}.parquet": None
+            for t in _FINAL_TABLES
+            if (d / f"{t}.parquet").is_file()
+        }
+        for name in recorded:
+            try:
+                pq.read_metadata(d / name)
+            except (OSError, ValueError) as e:
+                return f"{name} cannot be read: {str(e).splitlines()[0][:80]}"
+        return None
+    if "runs.parquet" not in recorded:
+        return "runs.parquet is not recorded in the manifest"
+    for name, sha in recorded.items():
+        if not (d / name).is_file():
+            return f"{name} is missing"
+        if res.sha256_file(d / name) != sha:
+            return f"{name} does not match its SHA-256 in the manifest"
+    return None
+
+
+def _warn_damaged_tables(plan: ExperimentPlan, out: Path) -> str | None:
+    """Name the damaged merged tables of a complete experiment in a warning (they
+    are then merged again from the chunks, or the chunks computed again where
+    they are gone); returns the reason, or None."""
+    import json
+
+    d = _exp_dir(out, plan.name)
+    try:
+        with open(d / "manifest.json") as fh:
+            old = json.load(fh)
+    except (OSError, json.JSONDecodeError):
+        return None
+    if old.get("status") != "complete":
+        return None
+    why = _damaged_tables(d, old)
+    if why is not None:
+        _say(
+            f"warning: {plan.name}: the merged tables in {d} are damaged ({why}); "
+            "merging them again (chunks that are gone are computed again)"
+        )
+    return why
 
 
 def _config_diff(old: Mapping[str, Any], new: Mapping[str, Any]) -> str:
@@ -402,6 +456,12 @@ def _write_manifest(
         "gap_curve column of chunks/*/runs.parquet",
         "extra": plan.extra,
     }
+    if status == "complete":  # the merged tables' SHA-256, checked on every run
+        manifest["tables"] = {
+            f"{t}.parquet": res.sha256_file(d / f"{t}.parquet")
+            for t in _FINAL_TABLES
+            if (d / f"{t}.parquet").is_file()
+        }
     res.atomic_write_json(manifest, mf)
 
 

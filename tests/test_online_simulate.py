@@ -1,0 +1,139 @@
+"""The simulated robot's command line (issue 26): a resumed run keeps its own
+length and curve step, the learning curve has enough marked points, and a
+problem file or a mesh of the user's own runs as well as a catalogue name."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from helpers import catalog_problem
+
+from legs_jax import problem as problem_mod
+from legs_jax.online import cli
+from legs_jax.online import simulate as sim_mod
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def clamp_problem(tmp_path_factory) -> Path:
+    pb = catalog_problem("bar_clamp", trials=1, grasps=100, samples=20)
+    path = tmp_path_factory.mktemp("problem") / "bar_clamp.npz"
+    problem_mod.save(pb, path)
+    return path
+
+
+def _curve(out: Path) -> list[dict]:
+    return [json.loads(x) for x in (out / "curve.jsonl").read_text().splitlines()]
+
+
+def test_resume_keeps_the_runs_steps_and_curve_step(
+    tmp_path, clamp_problem, monkeypatch, capsys
+):
+    """Issue 26, 2: a run of 120 steps with a curve point every 30, killed at
+    step 29 and resumed without --steps or --eval-every, ends at 120 with its
+    points every 30 (not at the defaults 1000 and 100)."""
+    out = tmp_path / "run"
+    args = ["simulate", "--problem", str(clamp_problem), "--given-poses"]
+    args += ["--out", str(out), "--quiet", "--compile-cache", "off"]
+    real = sim_mod.Simulation.run_step
+    done = {"n": 0, "stop": 29}
+
+    def run_step(self):
+        if done["n"] >= done["stop"]:
+            raise KeyboardInterrupt  # the kill
+        done["n"] += 1
+        return real(self)
+
+    monkeypatch.setattr(sim_mod.Simulation, "run_step", run_step)
+    assert cli.main([*args, "--steps", "120", "--eval-every", "30"]) == 130
+    capsys.readouterr()
+    done["stop"] = 200  # a resume that ran on towards 1000 stops here
+    assert cli.main([*args, "--resume"]) == 0, capsys.readouterr().err
+    assert done["n"] == 120
+    assert [r["step"] for r in _curve(out)] == [0, 30, 60, 90, 120]
+    assert "120 grasps" in capsys.readouterr().out
+    # a longer run asked for on resume goes on, and keeps that length after
+    assert cli.main([*args, "--resume", "--steps", "150"]) == 0
+    assert json.loads((out / "simulation.json").read_text())["steps"] == 150
+    assert [r["step"] for r in _curve(out)][-2:] == [120, 150]
+
+
+def test_learning_curve_has_marked_points(tmp_path, clamp_problem, monkeypatch):
+    """Issue 26, 9: the default curve step gives 50 points over a short run (not
+    4 points at every 100 steps), each drawn with a marker."""
+    out = tmp_path / "run"
+    drawn = {}
+
+    def save(fig, ax, title, path):
+        drawn["lines"] = [(ln.get_marker(), len(ln.get_xdata())) for ln in ax.lines]
+        return Path(path)
+
+    monkeypatch.setattr(sim_mod, "save_figure", save)
+    args = ["simulate", "--problem", str(clamp_problem), "--given-poses"]
+    args += ["--out", str(out), "--quiet", "--steps", "200"]
+    assert cli.main([*args, "--compile-cache", "off"]) == 0
+    steps = [r["step"] for r in _curve(out)]
+    assert steps == list(range(0, 201, 4))
+    assert len(drawn["lines"]) == 3  # success rate, gap, bound
+    assert all(m not in (None, "", "None") and n == 51 for m, n in drawn["lines"])
+
+
+def _run(args, cwd):
+    env = dict(os.environ, PYTHONPATH=str(ROOT), MPLBACKEND="Agg")
+    return subprocess.run(
+        [sys.executable, "-m", *args], cwd=cwd, env=env, capture_output=True,
+        text=True, timeout=600,
+    )  # fmt: skip
+
+
+def test_a_users_mesh_is_skipped_when_current_and_simulated(tmp_path):
+    """Issue 26, 6: precompute --mesh skips an up-to-date file (unless --force),
+    and online simulate runs on that problem file or on the mesh itself."""
+    work = tmp_path / "work"
+    work.mkdir()
+    trimesh.creation.box((40.0, 60.0, 30.0)).export(work / "box.stl")
+    build = ["precompute", "--mesh", "box.stl", "--units", "mm", "--trials", "1"]
+    build += ["--grasps", "100", "--samples", "5", "--quiet", "--prior", "synthetic"]
+    r = _run(build, work)
+    assert r.returncode == 0, r.stderr
+    dest = work / "problems" / "custom" / "box.npz"
+    stamp = dest.stat().st_mtime_ns
+    r = _run(build, work)
+    assert r.returncode == 0, r.stderr
+    assert (
+        "1 up-to-date problem file(s) skipped" in r.stdout and "built" not in r.stdout
+    )
+    assert dest.stat().st_mtime_ns == stamp
+    r = _run([*build, "--force"], work)
+    assert r.returncode == 0 and "built 1 problem file(s)" in r.stdout
+    assert dest.stat().st_mtime_ns != stamp
+    # the problem file: the mesh found where it was built from
+    sim = ["legs_jax.online", "simulate", "--quiet", "--compile-cache", "off"]
+    r = _run([*sim, "--object", str(dest), "--given-poses", "--steps", "5",
+              "--out", "run1"], tmp_path)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert "5 grasps" in r.stdout and "gap" in r.stdout
+    # the mesh itself: poses from the mesh, recognition, no gap
+    r = _run([*sim, "--object", "box.stl", "--units", "mm", "--steps", "2",
+              "--reservoir", "200", "--out", "run2"], work)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert "2 grasps" in r.stdout and "gap" not in r.stdout
+    # a mesh without its unit, and a problem file whose mesh is gone: one line
+    r = _run([*sim, "--object", "box.stl", "--out", "run3"], work)
+    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0
+    assert "needs --units" in r.stderr
+    (work / "box.stl").rename(work / "moved.stl")
+    r = _run([*sim, "--object", str(dest), "--out", "run4"], tmp_path)
+    assert (
+        r.returncode == 2 and "give it as --object MESH beside --problem" in r.stderr
+    ), r.stderr
+    assert r.stderr.strip().count("\n") == 0
+    assert np.isfinite(problem_mod.load(dest).landing).all()
