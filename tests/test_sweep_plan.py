@@ -619,7 +619,7 @@ def test_dry_run_does_not_build_missing_problems(tmp_path, monkeypatch, capsys):
     )
     monkeypatch.setattr(precompute, "ensure", lambda *a, **k: built.append(a))
     args = ["--experiment", "prior_strength", "--dry-run", "--out", str(tmp_path)]
-    code = sweep.main(args)
+    code = sweep.main([*args, "--problem-source", "built"])
     out = capsys.readouterr().out
     assert code == 0 and not built
     assert "prior_strength: 1 problem file(s) missing" in out and "bar_clamp" in out
