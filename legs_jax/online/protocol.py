@@ -18,6 +18,11 @@ Responses are ``{"id": ..., "ok": true, "result": {...}}`` or ``{"id": ...,
 "ok": false, "error": {"type": ..., "message": ...}}``; an error changes nothing.
 The first line written is ``{"ok": true, "ready": {...}}`` once the session is
 open (created, or resumed with every recorded outcome).
+
+``bound`` answers both stopping bounds: the paper's ``p_lower`` (and
+``p_lower_attempted``) and ours ``p_lower_ours`` (:mod:`legs_jax.stopping`);
+with ``rho_min`` (the stopping threshold ρ_min) also ``stop`` (the paper's bound
+≥ ρ_min) and ``stop_ours`` (ours ≥ ρ_min: the signal to stop on).
 """
 
 from __future__ import annotations
