@@ -54,12 +54,12 @@ __all__ = [
     "forgotten_cells",
 ]
 
-GRID = 20  # histogram bins of the prior G_s
-EM_ITERATIONS = 50
+GRID = 16  # histogram bins of the prior G_s
+EM_ITERATIONS = 25
 UNIFORM_STREAM = 1 << 30  # fold_in data of the p' uniforms (apart from pose ids)
 # Forgotten grasps (pruned from an active set) are kept as a count per (S, F)
 # cell, S and F clipped to CAP - 1.
-CAP = 12
+CAP = 8
 CELLS = CAP * CAP
 
 
