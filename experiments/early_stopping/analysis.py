@@ -295,7 +295,8 @@ def early_stopping_figure(res: Results, out: Path) -> tuple[Path, dict[str, Any]
     fig.text(0.5, 0.02, "\n".join(lines), ha="center", va="bottom", fontsize=8.5)
     info = dict(
         experiment=exp,
-        summary=summary,
+        summary=summary[summary["set"] == DESIGN_SET].reset_index(drop=True),
+        summary_sets=summary,
         per_object=per_obj,
         sensitivity=sens,
         horizon=horizon,
@@ -306,7 +307,9 @@ def early_stopping_figure(res: Results, out: Path) -> tuple[Path, dict[str, Any]
 
 def early_stopping_tables(info: dict[str, Any], out: Path) -> list[Path]:
     files = []
-    files += write_pair("early_stopping", early_stopping_table(info["summary"]), out)
+    files += write_pair(
+        "early_stopping", early_stopping_table(info["summary_sets"]), out
+    )
     files += write_pair(
         "early_stopping_per_object",
         early_stopping_per_object_table(info["per_object"]),
@@ -333,13 +336,13 @@ def _section(ctx: Mapping) -> list[str]:
     L = ["## Early stopping (Section 5.4, Fig. 4)", ""]
     es = ctx.get("early_stopping")
     if es:
-        L.append(to_markdown(early_stopping_table(es["summary"])))
+        L.append(to_markdown(early_stopping_table(es["summary_sets"])))
         L += [
             "![Fig. 4: early-stopping accuracy and steps against the "
             "threshold](figures/fig4_early_stopping.png)",
             "",
         ]
-        summ = es["summary"]
+        summ = es["summary_sets"]
         s = summ[summ["set"] == DESIGN_SET].set_index("bound")
         sens = es["sensitivity"]
         if "all" in s.index:
