@@ -152,12 +152,13 @@ def draw_values(keys: jax.Array, post: jax.Array, num_samples: int) -> jax.Array
         )(jnp.arange(P))  # [P, M]
 
     u = jnp.swapaxes(jax.vmap(row)(keys), 1, 2)  # [B, M, P]
-    cdf = jnp.cumsum(post, axis=-1)  # [B, P, J]
-    j = jnp.sum(cdf[:, None, :, :] <= u[..., None], axis=-1)  # [B, M, P]
-    j = jnp.minimum(j, J - 1)
-    before = jnp.where(
-        j > 0, jnp.take_along_axis(cdf[:, None], (j - 1)[..., None], -1)[..., 0], 0.0
-    )
-    wj = jnp.take_along_axis(post[:, None], j[..., None], -1)[..., 0]
+    cdf = jnp.cumsum(post, axis=-1)[:, None]  # [B, 1, P, J]
+    below = cdf <= u[..., None]  # [B, M, P, J]
+    # the bin, the cumulative weight before it and its own weight, by reductions
+    # over J (no gathers)
+    j = jnp.minimum(jnp.sum(below, axis=-1), J - 1)  # [B, M, P]
+    before = jnp.max(jnp.where(below, cdf, 0.0), axis=-1)
+    upto = jnp.min(jnp.where(below, jnp.inf, cdf), axis=-1)
+    wj = jnp.where(jnp.isfinite(upto), upto - before, 1.0)
     frac = jnp.clip((u - before) / jnp.maximum(wj, 1e-30), 0.0, 1.0)
     return (j.astype(jnp.float32) + frac) / J
