@@ -96,8 +96,9 @@ PROPOSED = _MAIN.PROPOSED  # the method the paper proposes (LEGS)
 
 # Lower bounds of the stopping rule: name -> checks column. "all" is the paper's
 # formula (p-hat* over all candidates), "attempted" the variant over attempted
-# grasps only (SPEC §5).
-BOUNDS = {"all": "p_lower", "attempted": "p_lower_attempted"}
+# grasps only (SPEC §5), "ours" the Dirichlet bound on an empirical-Bayes posterior
+# of the recommended grasps (legs_jax.stopping).
+BOUNDS = {"all": "p_lower", "attempted": "p_lower_attempted", "ours": "p_lower_eb"}
 
 _RUN_KEYS = ["object", "trial", "rollout"]
 

@@ -36,7 +36,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from legs_jax import _programs, sampling
+from legs_jax import _programs, sampling, stopping
 from legs_jax import keys as keys_mod
 from legs_jax import methods as methods_mod
 from legs_jax.constants import DELTA_STOP, NUM_DIRICHLET_SAMPLES
@@ -85,6 +85,9 @@ class RunResult(NamedTuple):
     check_p_lower_attempted: np.ndarray  # [G, O, T, R, C2] f32 (attempted only)
     check_true_performance: np.ndarray  # [G, O, T, R, C2] f32
     active_set: np.ndarray | None  # [G, O, T, R, C2, P, k] i32 grasp ids, -1 empty
+    # [G, O, T, R, C2] f32 our bound (legs_jax.stopping); NaN for a method
+    # without per-grasp counts
+    check_p_lower_eb: np.ndarray | None = None
 
 
 # ------------------------------------------------------------------- the loop
@@ -96,6 +99,7 @@ class _Loop(NamedTuple):
     drops: jax.Array  # [B, P] i32 c_s
     observed: jax.Array  # [B, P] bool landed in or toppled into
     visited: jax.Array  # [B, P] bool grasped in at least once
+    forgotten: jax.Array  # [B, P, stopping.CELLS] f32 pruned grasps per (S, F)
     successes: jax.Array  # [B] i32
     distinct: jax.Array  # [B] i32
     replacements: jax.Array  # [B] i32
@@ -176,6 +180,7 @@ def dirichlet_quantiles(
     values: jax.Array,
     delta: float = DELTA_STOP,
     num_samples: int = NUM_DIRICHLET_SAMPLES,
+    draws: jax.Array | None = None,
 ) -> jax.Array:
     """The δ-quantile of p' = Σ_s v_s λ'_s, λ' ~ Dir(c_s + 1 observed, 1 unseen),
     for V value vectors scored on the same M samples (SPEC §5).
@@ -192,8 +197,10 @@ def dirichlet_quantiles(
       counts: [B, P] drop counts c_s.
       observed: [B, P] bool.
       values: [B, V, P] p̂*_s per value vector.
+      draws: optional [B, M, P] values drawn per sample (our bound,
+        :mod:`legs_jax.stopping`), scored on the same λ' as one more row.
     Returns:
-      [B, V] f32 bounds p̂_ℓ.
+      [B, V] f32 bounds p̂_ℓ ([B, V + 1] with ``draws``, theirs last).
     """
     B, P = counts.shape
     M = num_samples
@@ -218,9 +225,20 @@ def dirichlet_quantiles(
         [
             sum(g[:, :, s] * v[:, i, s : s + 1] for s in range(P)) / total
             for i in range(values.shape[1])
-        ],
+        ]
+        + (
+            []
+            if draws is None
+            else [
+                sum(
+                    g[:, :, s] * jnp.where(observed[:, s : s + 1], draws[:, :, s], 0.0)
+                    for s in range(P)
+                )
+                / total
+            ]
+        ),
         axis=1,
-    )  # [B, V, M]
+    )  # [B, V (+1), M]
     pos = delta * (M - 1)
     lo = int(math.floor(pos))
     hi = min(lo + 1, M - 1)
@@ -263,36 +281,54 @@ def dirichlet_checks(
     Check c (1-based) of a rollout draws from ``fold_in(check_key, c)``; both
     variants (p̂* over all candidates, over attempted ones) use the same samples.
     Adds ``check_p_lower`` and ``check_p_lower_attempted`` [B, C2] (NaN when the
-    attempted values are absent) and removes the inputs.
+    attempted values are absent) and removes the inputs. With ``check_eb_post``
+    (the empirical-Bayes posteriors of :func:`legs_jax.stopping.eb_posterior`,
+    [B, C2, P, GRID]) it also adds our bound ``check_p_lower_eb`` [B, C2] on the
+    same λ' draws (NaN rows of the input give NaN).
     """
     out = dict(out)
     counts = out.pop("check_counts")  # [B, C2, P]
     observed = out.pop("check_observed")
     v_all = out.pop("check_values")
     v_att = out.pop("check_values_attempted", None)
+    post = out.pop("check_eb_post", None)
     B, C2, _ = counts.shape
     ck = keys_mod.check_key(rollout_keys)
 
     def one(args):
-        idx, c, o, va, vt = args
+        idx, c, o, va, vt, pe = args
         v = va[:, None] if vt is None else jnp.stack([va, vt], axis=1)
 
-        def bounds(ck, c, o, v):
+        def bounds(ck, c, o, v, *pe):
             k = keys_mod.step_keys(ck, idx)
-            return dirichlet_quantiles(k, c, o, v, DELTA_STOP, NUM_DIRICHLET_SAMPLES)
+            draws = None
+            if pe:
+                ok = jnp.all(jnp.isfinite(pe[0]), axis=(1, 2))
+                safe = jnp.where(ok[:, None, None], pe[0], 1.0 / stopping.GRID)
+                draws = stopping.draw_values(k, safe, NUM_DIRICHLET_SAMPLES)
+            lo = dirichlet_quantiles(
+                k, c, o, v, DELTA_STOP, NUM_DIRICHLET_SAMPLES, draws=draws
+            )
+            if pe:
+                lo = lo.at[:, -1].set(jnp.where(ok, lo[:, -1], jnp.nan))
+            return lo
 
-        lo = _in_row_blocks(bounds, ck, c, o, v)
-        if vt is None:
-            return lo[:, 0], jnp.full(B, jnp.nan, jnp.float32)
-        return lo[:, 0], lo[:, 1]
+        extra = () if pe is None else (pe,)
+        lo = _in_row_blocks(bounds, ck, c, o, v, *extra)
+        nan = jnp.full(B, jnp.nan, jnp.float32)
+        eb = nan if pe is None else lo[:, -1]
+        att = nan if vt is None else lo[:, 1]
+        return lo[:, 0], att, eb
 
     swap = lambda x: None if x is None else jnp.moveaxis(x, 1, 0)  # noqa: E731
     idx = jnp.arange(1, C2 + 1, dtype=jnp.int32)
-    lo, lo_att = jax.lax.map(
-        one, (idx, swap(counts), swap(observed), swap(v_all), swap(v_att))
+    lo, lo_att, lo_eb = jax.lax.map(
+        one, (idx, swap(counts), swap(observed), swap(v_all), swap(v_att), swap(post))
     )
     out["check_p_lower"] = jnp.moveaxis(lo, 0, 1).astype(jnp.float32)
     out["check_p_lower_attempted"] = jnp.moveaxis(lo_att, 0, 1).astype(jnp.float32)
+    if post is not None:
+        out["check_p_lower_eb"] = jnp.moveaxis(lo_eb, 0, 1).astype(jnp.float32)
     return out
 
 
@@ -335,7 +371,8 @@ def simulate(
       2L, ...; L = gcd(record_every, check_every)), ``final_gap``,
       ``final_performance``, ``successes``, ``distinct_grasps``, ``replacements``
       [B], and when checks run ``check_p_lower``, ``check_p_lower_attempted``,
-      ``check_true_performance`` [B, C2] (and ``active_set`` [B, C2, P, k]).
+      ``check_p_lower_eb`` (our bound), ``check_true_performance`` [B, C2]
+      (and ``active_set`` [B, C2, P, k]).
     """
     m = method
     _TRACES[(m.name, cfg, horizon, record_every, check_every, ot.shape[0])] += 1
@@ -348,6 +385,16 @@ def simulate(
     bi = jnp.arange(B)
 
     ms = m.init(ctx, cfg)
+    # Our bound fits every grasp attempted so far: keep those a prune forgets.
+    track = m.counts is not None and m.prune is not None
+
+    def prune(st, s, live):
+        st2, removed = m.prune(st, ctx, cfg, s, live)
+        if not track:
+            return st2, removed, jnp.zeros((B, P, 0), jnp.float32)
+        lost = stopping.forgotten_cells(m.counts(st, ctx, cfg), m.counts(st2, ctx, cfg))
+        return st2, removed, lost
+
     s0 = env_reset(keys_mod.step_keys(env_k, 0), tables, ot).pose
     zeros_bp = jnp.zeros((B, P), jnp.int32)
     loop = _Loop(
@@ -356,6 +403,7 @@ def simulate(
         drops=zeros_bp.at[bi, s0].add(1),
         observed=jnp.zeros((B, P), bool).at[bi, s0].set(True),
         visited=jnp.zeros((B, P), bool),
+        forgotten=jnp.zeros((B, P, stopping.CELLS if track else 0), jnp.float32),
         successes=jnp.zeros(B, jnp.int32),
         distinct=jnp.zeros(B, jnp.int32),
         replacements=jnp.zeros(B, jnp.int32),
@@ -377,13 +425,21 @@ def simulate(
             traj = (s, jnp.where(live, grasp, -1), reward, live, inside | ~live)
         ms, new = m.update(c.mstate, ctx, cfg, s, grasp, slot, reward, live)
         removed = jnp.zeros(B, jnp.int32)
+        forgotten = c.forgotten
         if m.prune is not None:
-            ms, removed = jax.lax.cond(
+            ms, removed, lost = jax.lax.cond(
                 t % cfg.n == 0,
-                lambda st: m.prune(st, ctx, cfg, s, live),
-                lambda st: (st, jnp.zeros(B, jnp.int32)),
+                prune,
+                lambda st, s, live: (
+                    st,
+                    jnp.zeros(B, jnp.int32),
+                    jnp.zeros(forgotten.shape, jnp.float32),
+                ),
                 ms,
+                s,
+                live,
             )
+            forgotten = forgotten + lost
         rec = c.rec
         if m.learns:
             if m.recommend_updated is None or rows is None:
@@ -404,6 +460,7 @@ def simulate(
             drops=c.drops.at[bi, s_next].add(reward.astype(jnp.int32)),
             observed=c.observed.at[bi, s_next].set(True),
             visited=c.visited.at[bi, s].set(c.visited[bi, s] | live),
+            forgotten=forgotten,
             successes=c.successes + reward,
             distinct=c.distinct + new,
             replacements=c.replacements + removed,
@@ -426,6 +483,16 @@ def simulate(
         c, traj = run_steps(c, blk * L, L)
         return c, (_gap(tables, ot, c.rec), traj)
 
+    def _eb_post(c: _Loop):
+        """Our bound's posteriors of the recommended grasps [B, P, GRID] (NaN
+        for a method without per-grasp counts)."""
+        if m.counts is None:
+            return jnp.full((B, P, stopping.GRID), jnp.nan, jnp.float32)
+        succ, fail, fit, ids = m.counts(c.mstate, ctx, cfg)
+        rec = (ids == c.rec[..., None]) & (c.rec[..., None] >= 0)
+        lost = c.forgotten if track else None
+        return stopping.eb_posterior(succ, fail, fit, rec, lost)
+
     def check(c: _Loop, idx):
         v_all, v_att = m.estimates(c.mstate, ctx, cfg)
         out = dict(
@@ -436,6 +503,7 @@ def simulate(
         )
         if attempted_variant:
             out["check_values_attempted"] = v_att.astype(jnp.float32)
+        out["check_eb_post"] = _eb_post(c)
         if record_active_set:
             if m.active_set is None:
                 act = jnp.full((B, P, _active_width(dict(cfg.static))), -1, jnp.int32)
@@ -932,6 +1000,7 @@ def run(
         active_set=(
             get("active_set", np.int32, (C2, P, width)) if record_active_set else None
         ),
+        check_p_lower_eb=get("check_p_lower_eb", np.float32, (C2,)),
     )
 
 

@@ -25,7 +25,10 @@ float64; k, n as int64; ``variant`` is "" for the default configuration):
   kept in the ``gap_curve`` column of ``chunks/*/runs.parquet``.
 - checks: experiment, set, object, method, variant, trial, rollout,
   <hyperparameters>, step, p_lower (p-hat* over all candidates, the paper's bound),
-  p_lower_attempted (over attempted grasps only), true_performance.
+  p_lower_attempted (over attempted grasps only), p_lower_eb (our bound, the
+  Dirichlet bound on an empirical-Bayes posterior of the recommended grasps,
+  legs_jax.stopping; NaN for methods without per-grasp counts),
+  true_performance.
 - active_set: object, method, variant, grid_index, trial, rollout, step, pose,
   slot, grasp, robustness (filled slots of visited poses only).
 - grasps: object, trial, pose, grasp, landing, robustness, prior (trial 0).
@@ -292,6 +295,12 @@ def chunk_tables(result: Any, ctx: ChunkContext) -> dict[str, pd.DataFrame]:
             if att is not None
             else np.full(m, np.nan)
         )
+        eb = getattr(result, "check_p_lower_eb", None)
+        cols["p_lower_eb"] = (
+            np.asarray(eb).reshape(-1).astype(np.float64)
+            if eb is not None
+            else np.full(m, np.nan)
+        )
         cols["true_performance"] = (
             np.asarray(result.check_true_performance).reshape(-1).astype(np.float64)
         )
@@ -491,6 +500,7 @@ _CHECK_COLUMNS = [
     "step",
     "p_lower",
     "p_lower_attempted",
+    "p_lower_eb",
     "true_performance",
 ]
 

@@ -96,6 +96,7 @@ def _fake_result(arm, objects, grid, seed):
     true_perf = np.zeros((G, O, T, R, len(check_steps)))
     p_lower = np.zeros_like(true_perf)
     p_att = np.zeros_like(true_perf)
+    p_eb = np.full_like(true_perf, np.nan)  # our bound: Beta-posterior methods
     for o, name in enumerate(objects):
         orng = _rng(seed, OBJECT_ID[name])
         scale = orng.uniform(0.5, 1.5)
@@ -125,6 +126,9 @@ def _fake_result(arm, objects, grid, seed):
             true_perf[g, o] = tp
             p_lower[g, o] = tp - 0.03 + rng.normal(0, 0.02, tp.shape)
             p_att[g, o] = p_lower[g, o] - np.abs(rng.normal(0.02, 0.02, tp.shape))
+            if method != "tql":
+                erng = _rng(seed, OBJECT_ID[name], 23, g)  # apart from the others
+                p_eb[g, o] = tp - 0.04 + erng.normal(0, 0.02, tp.shape)
     final_gap = gap[..., -1]
     rng = _rng(seed, 99)
     counts = rng.integers(100, H, size=final_gap.shape)
@@ -141,6 +145,7 @@ def _fake_result(arm, objects, grid, seed):
         check_p_lower_attempted=p_att,
         check_true_performance=true_perf,
         active_set=None,
+        check_p_lower_eb=p_eb,
     )
 
 

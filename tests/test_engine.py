@@ -455,6 +455,30 @@ def test_dirichlet_bounds_do_not_depend_on_pose_padding():
     )
     np.testing.assert_array_equal(plain, wide)
     assert np.all((plain > 0.0) & (plain < 1.0))
+    # our bound: posteriors of the padded poses (uniform, no data) never count
+    from legs_jax import stopping
+
+    post = rng.dirichlet(np.ones(stopping.GRID), (B, P)).astype(np.float32)
+    post_w = np.concatenate(
+        [post, np.full((B, pad, stopping.GRID), 1 / stopping.GRID, np.float32)], 1
+    )
+    g = jax.jit(
+        lambda k, c, o, v, p: engine.dirichlet_quantiles(
+            k, c, o, v, draws=stopping.draw_values(k, p, engine.NUM_DIRICHLET_SAMPLES)
+        )
+    )
+    ours = np.asarray(g(k, counts, observed, values, post))
+    ours_w = np.asarray(
+        g(
+            k,
+            np.pad(counts, ((0, 0), (0, pad))),
+            np.pad(observed, ((0, 0), (0, pad))),
+            np.pad(values, ((0, 0), (0, 0), (0, pad))),
+            post_w,
+        )
+    )
+    np.testing.assert_array_equal(ours, ours_w)
+    np.testing.assert_array_equal(ours[:, :2], plain)  # the paper's rows unchanged
 
 
 def test_dirichlet_checks_in_row_blocks_equal_small_batches():

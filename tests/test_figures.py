@@ -152,6 +152,26 @@ def test_per_object_table_values(world):
     assert md.count("\n| EGAD! evaluation |") == 3
 
 
+def test_early_stopping_reports_ours_on_both_sets(world):
+    md = (world["out1"] / "tables" / "early_stopping.md").read_text()
+    es = pd.read_parquet(world["results"] / "early_stopping" / "checks.parquet")
+    main = pd.read_parquet(world["results"] / "main" / "checks.parquet")
+    held = main[(main["set"] == "egad_eval") & (main["method"] == "legs")]
+    held = held[held["variant"].fillna("") == ""]
+    rows = [line for line in md.splitlines() if "ours: empirical-Bayes" in line]
+    assert len(rows) == 2
+    for c, label, row in (
+        (es, "Dex-Net Adversarial", rows[0]),
+        (held, "EGAD! evaluation", rows[1]),
+    ):
+        acc = np.mean(c["p_lower_eb"] <= c["true_performance"])
+        tight = np.mean(c["true_performance"] - c["p_lower_eb"])
+        assert label in row
+        assert f"{100 * acc:.1f} %" in row and f"{100 * tight:.2f} %" in row
+    report = (world["out1"] / "REPORT.md").read_text()
+    assert "Ours on the EGAD! evaluation set (held out" in report
+
+
 def test_early_stopping_values(world):
     checks = pd.read_parquet(world["results"] / "early_stopping" / "checks.parquet")
     acc = np.mean(checks["p_lower"] <= checks["true_performance"])

@@ -181,6 +181,33 @@ def test_ask_is_idempotent_and_counts_follow_the_engine(tmp_path):
         assert ses.observed[:3].all()
         b = ses.bound(0.0)
         assert b["stop"] and 0 <= b["p_lower_attempted"] <= b["p_lower"] <= 1
+        assert b["stop_ours"] and 0 <= b["p_lower_ours"] <= 1
+
+
+@pytest.mark.parametrize("ok", [True, False])
+def test_our_bound_follows_the_outcomes(tmp_path, ok):
+    # One pose, every landing counted after a success: λ' is nearly all on it, so
+    # our bound is about the lower tail of the recommended grasp's posterior.
+    with Session.create(tmp_path / "s", given_poses=given_poses()) as ses:
+        for _ in range(150):
+            ses.observe(pose=0)
+            ses.ask()
+            ses.tell(ok)
+        b = ses.bound(0.8)
+    if ok:
+        assert b["p_lower_ours"] > 0.8 and b["stop_ours"]
+    else:
+        assert b["p_lower_ours"] < 0.2 and not b["stop_ours"]
+
+
+def test_simulate_refuses_a_bad_stopping_threshold():
+    from legs_jax.online.simulate import _check_stop_at
+
+    for bad in (1.5, -0.1, "0.8", True):
+        with pytest.raises(InputError, match="stopping threshold"):
+            _check_stop_at(bad)
+    _check_stop_at(None)
+    _check_stop_at(0.8)
 
 
 # ------------------------------------------------------------------ persistence

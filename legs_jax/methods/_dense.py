@@ -14,6 +14,7 @@ from legs_jax.methods.base import (
     Config,
     Ctx,
     argmax_first,
+    beta_counts,
     gather_at,
     gather_rows,
     posterior_prior,
@@ -111,6 +112,12 @@ def estimates(st: DenseState, ctx: Ctx, cfg: Config):
     return out[0], out[1]
 
 
+def counts(st: DenseState, ctx: Ctx, cfg: Config):
+    succ, fail = beta_counts(st.alpha, st.beta, ctx.tables.q[ctx.ot], ctx.hp)
+    ids = jnp.broadcast_to(jnp.arange(st.alpha.shape[-1], dtype=jnp.int32), succ.shape)
+    return succ, fail, st.attempted, ids
+
+
 def candidates(st: DenseState, ctx: Ctx, cfg: Config):
     return _mask(st, ctx)
 
@@ -130,4 +137,4 @@ def prune(st: DenseState, ctx: Ctx, cfg: Config, s, live):
 
 # The functions a method built on this state shares (besides ``init``).
 _SHARED = (select, update, recommend, recommend_updated, recommend_init)
-FUNCTIONS = {f.__name__: f for f in (*_SHARED, estimates, candidates)}
+FUNCTIONS = {f.__name__: f for f in (*_SHARED, estimates, candidates, counts)}

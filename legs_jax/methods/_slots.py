@@ -18,6 +18,7 @@ from legs_jax.methods.base import (
     Config,
     Ctx,
     argmin_id_of_max,
+    beta_counts,
     gather_at,
     posterior_prior,
     prune_mask,
@@ -89,6 +90,12 @@ def estimates(st: SlotState, ctx: Ctx, cfg: Config):
     return out[0], out[1]
 
 
+def counts(st: SlotState, ctx: Ctx, cfg: Config):
+    q = jnp.take_along_axis(ctx.tables.q[ctx.ot], jnp.maximum(st.gid, 0), axis=-1)
+    succ, fail = beta_counts(st.alpha, st.beta, q, ctx.hp)
+    return succ, fail, st.attempted & (st.gid >= 0), st.gid
+
+
 def candidates(st: SlotState, ctx: Ctx, cfg: Config):
     B, P, _ = st.gid.shape
     dense = jnp.zeros((B, P, cfg.num_grasps + 1), bool)
@@ -138,4 +145,4 @@ def prune_refill(st: SlotState, ctx: Ctx, cfg: Config, s, live):
 
 # The functions a method built on this state shares (besides ``init``).
 _SHARED = (select, update, recommend, recommend_updated, recommend_init)
-FUNCTIONS = {f.__name__: f for f in (*_SHARED, estimates, candidates)}
+FUNCTIONS = {f.__name__: f for f in (*_SHARED, estimates, candidates, counts)}

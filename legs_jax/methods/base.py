@@ -201,6 +201,11 @@ class Method:
     - ``recommend_init(state, ctx, cfg) -> [B, P]``: π_0 for every pose (no data).
     - ``estimates(state, ctx, cfg) -> ([B, P], [B, P])``: p̂*_s over all candidates
       and over the attempted candidates only (0 where there are none).
+    - ``counts`` (or None) ``(state, ctx, cfg) -> (succ, fail, fit, ids)``, each
+      [B, P, N] over the method's columns: successes and failures of the
+      column's grasp, whether it enters the empirical-Bayes fit of our stopping
+      bound (attempted), and its grasp id (-1 none). None: the method keeps no
+      per-grasp counts and our bound is NaN (:mod:`legs_jax.stopping`).
     - ``candidates(state, ctx, cfg) -> [B, P, K]`` bool: the candidate set, dense
       (for tests and conformance checks; not used in the loop).
     - ``active_set`` (or None) ``(state, ctx, cfg) -> [B, P, k]`` grasp ids, -1 for
@@ -242,6 +247,7 @@ class Method:
     prune: Callable[..., tuple[Any, jax.Array]] | None = None
     active_set: Callable[..., jax.Array] | None = None
     recommend_updated: Callable[..., jax.Array] | None = None
+    counts: Callable[..., tuple] | None = None
     learns: bool = True  # False for the constant rows (Dex-Net, K100 UB)
     hparams: type = BetaPrior
     ranges: Mapping[str, Range] = dataclasses.field(
@@ -337,6 +343,16 @@ def posterior_prior(q: jax.Array, hp: Any) -> tuple[jax.Array, jax.Array]:
     s = _col(hp.s, q.ndim)
     off = _col(hp.prior_offset, q.ndim)
     return off + s * qc, off + s * (1.0 - qc)
+
+
+def beta_counts(alpha, beta, q, hp) -> tuple[jax.Array, jax.Array]:
+    """Successes and failures of Beta posteriors α, β of grasps of quality q
+    (the prior of :func:`posterior_prior` taken off, rounded to integers)."""
+    a0, b0 = posterior_prior(q, hp)
+    return (
+        jnp.maximum(jnp.round(alpha - a0), 0.0),
+        jnp.maximum(jnp.round(beta - b0), 0.0),
+    )
 
 
 def thompson_draw(

@@ -97,6 +97,7 @@ def make(name: str, top: bool, **declaration) -> Method:
         recommend_updated=base.recommend_updated,
         recommend_init=lambda st, ctx, cfg: base.recommend_init(st.inner, ctx, cfg),
         estimates=lambda st, ctx, cfg: base.estimates(st.inner, ctx, cfg),
+        counts=lambda st, ctx, cfg: base.counts(st.inner, ctx, cfg),
         candidates=lambda st, ctx, cfg: base.candidates(st.inner, ctx, cfg),
         **declaration,
     )

@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from legs_jax import engine
+from legs_jax import engine, stopping
 from legs_jax import keys as keys_mod
 from legs_jax import methods as methods_mod
 from legs_jax.errors import ConfigError
@@ -140,20 +140,46 @@ def _programs(method: str, cfg: Config):
         reward = reward & live
         ms, new = m.update(ms, c, cfg, s, grasp, slot, reward, live)
         removed = jnp.zeros(1, jnp.int32)
+        lost = jnp.zeros((1, P, stopping.CELLS), jnp.float32)
         if m.prune is not None:
+            updated = ms
             ms, removed = jax.lax.cond(
                 t % cfg.n == 0,
                 lambda st: m.prune(st, c, cfg, s, live),
                 lambda st: (st, jnp.zeros(1, jnp.int32)),
                 ms,
             )
+            if m.counts is not None:  # our bound keeps the grasps a prune forgets
+                lost = stopping.forgotten_cells(
+                    m.counts(updated, c, cfg), m.counts(ms, c, cfg)
+                )
         if m.learns:
             rec_s = m.recommend(ms, c, cfg, s)
             rec = rec.at[0, s[0]].set(jnp.where(live[0], rec_s[0], rec[0, s[0]]))
-        return ms, rec, new, removed
+        return ms, rec, new, removed, lost
 
     def estimates(ms, tables, hp):
         return m.estimates(ms, ctx(tables, hp), cfg)
+
+    def ours(key, counts, observed, ms, rec, forgotten, tables, hp):
+        """Our stopping bound (legs_jax.stopping), NaN without per-grasp counts."""
+        if m.counts is None:
+            return jnp.full(1, jnp.nan, jnp.float32)
+        succ, fail, fit, ids = m.counts(ms, ctx(tables, hp), cfg)
+        hit = (ids == rec[..., None]) & (rec[..., None] >= 0)
+        post = stopping.eb_posterior(succ, fail, fit, hit, forgotten)
+        draws = stopping.draw_values(key, post, engine.NUM_DIRICHLET_SAMPLES)
+        values = jnp.zeros(counts.shape[:1] + (1,) + counts.shape[1:], jnp.float32)
+        lo = engine.dirichlet_quantiles(
+            key,
+            counts,
+            observed,
+            values,
+            engine.DELTA_STOP,
+            engine.NUM_DIRICHLET_SAMPLES,
+            draws=draws,
+        )
+        return lo[:, -1]
 
     def bound(key, counts, observed, values):
         return engine.dirichlet_quantiles(
@@ -172,6 +198,7 @@ def _programs(method: str, cfg: Config):
         tell=jax.jit(tell),
         estimates=jax.jit(estimates),
         bound=jax.jit(bound),
+        ours=jax.jit(ours),
     )
 
 
@@ -210,6 +237,8 @@ class Loop:
         self._check_key = keys_mod.check_key(rollout_key[None])
         self._tables = self._make_tables()
         self.state, self.rec = self._fn["init"](self._tables, self.hp)
+        # grasps a prune forgot, per (S, F) cell, for our bound
+        self.forgotten = jnp.zeros((1, P, stopping.CELLS), jnp.float32)
 
     def _make_tables(self) -> Tables:
         P, K = self.q.shape
@@ -249,7 +278,7 @@ class Loop:
 
     def tell(self, s: int, grasp: int, slot: int, success: bool, t: int) -> dict:
         """Learn the outcome of step t; returns the engine's counters of the step."""
-        self.state, self.rec, new, removed = self._fn["tell"](
+        self.state, self.rec, new, removed, lost = self._fn["tell"](
             self.state,
             self.rec,
             self._tables,
@@ -260,6 +289,7 @@ class Loop:
             jnp.full(1, bool(success)),
             jnp.int32(t),
         )
+        self.forgotten = self.forgotten + lost
         return {"new": bool(new[0]), "removed": int(removed[0])}
 
     def recommendation(self) -> np.ndarray:
@@ -284,3 +314,19 @@ class Loop:
             values,
         )
         return float(lo[0, 0]), float(lo[0, 1])
+
+    def bound_ours(self, counts: np.ndarray, observed: np.ndarray, check: int) -> float:
+        """Our stopping bound (:mod:`legs_jax.stopping`) on the same λ' draws as
+        :meth:`bound`; NaN for a method without per-grasp counts."""
+        key = keys_mod.step_keys(self._check_key, check)
+        lo = self._fn["ours"](
+            key,
+            jnp.asarray(counts, jnp.float32)[None],
+            jnp.asarray(observed, bool)[None],
+            self.state,
+            self.rec,
+            self.forgotten,
+            self._tables,
+            self.hp,
+        )
+        return float(lo[0])

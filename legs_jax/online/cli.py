@@ -170,6 +170,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="curve point every N steps (default: steps / 50, at most 100; with "
         "--resume, the run's own unless given)",
     )
+    p.add_argument(
+        "--stop-at",
+        type=float,
+        metavar="RHO_MIN",
+        help="stop at the first curve point whose stopping bound (ours, "
+        "legs_jax.stopping) is at least RHO_MIN",
+    )
     quiet_arg(p)
     _session_args(p)
     _cache_arg(p)
@@ -322,6 +329,20 @@ def _find_problem(name: str):
     return path if path.is_file() else None
 
 
+def _print_stop(sim, stop_at) -> None:
+    if stop_at is None:
+        return
+    r = sim.stopped
+    if r is None:
+        print(f"no stop: our bound stayed below rho_min = {stop_at:.3f}")
+        return
+    print(
+        f"stopped at step {r['step']}: our bound {r['p_lower_ours']:.3f} >= rho_min "
+        f"{stop_at:.3f}; true success rate of the recommendations "
+        f"{r['performance']:.3f} (the paper's bound {r['p_lower']:.3f})"
+    )
+
+
 def _simulate(args) -> int:
     from legs_jax import problem as problem_mod
     from legs_jax.online.robot import World
@@ -393,9 +414,10 @@ def _simulate(args) -> int:
         steps=args.steps,
     )
     try:
-        sim.run(sim.steps, progress=not args.quiet)
+        sim.run(sim.steps, progress=not args.quiet, stop_at=args.stop_at)
         fig = sim.figure()
         last = sim.curve[-1]
+        _print_stop(sim, args.stop_at)
         print(
             f"{sim.step} grasps, {sim.session.successes} successes, "
             f"{len(sim.session.grasps)} poses; bound p_lower = {last['p_lower']:.3f}, "

@@ -21,6 +21,11 @@ The first line written is ``{"ok": true, "ready": {...}}`` once the session is
 open (created, or resumed with every recorded outcome), or ``{"ok": false,
 "error": {...}}`` when it cannot be opened (another process holds it, a damaged
 folder), and the process exits with status 2.
+
+``bound`` answers both stopping bounds: the paper's ``p_lower`` (and
+``p_lower_attempted``) and ours ``p_lower_ours`` (:mod:`legs_jax.stopping`);
+with ``rho_min`` (the stopping threshold ρ_min) also ``stop`` (the paper's bound
+≥ ρ_min) and ``stop_ours`` (ours ≥ ρ_min: the signal to stop on).
 """
 
 from __future__ import annotations

@@ -16,8 +16,11 @@ width (the contact distance).
 
 The prior
 ---------
-The learned prior (a GQ-CNN-like network) does not exist in this project yet.
-:func:`geometric_prior` is a stand-in that reads nothing but the image: it scores
+The learned prior (a GQ-CNN-like network, :mod:`precompute.learned`) scores the
+problem files' reservoirs from precompute's rendered depth images; the online
+session does not use it yet (its crops would have to be taken from the session's
+own camera), so new poses are scored by :func:`geometric_prior`, a stand-in
+that reads nothing but the image: it scores
 a grasp by how well its two edge normals oppose each other along the jaw axis,
 mapped to [0.3, 0.7]; it knows nothing of the ground truth. A learned prior plugs
 in as any function with the signature of :func:`geometric_prior`

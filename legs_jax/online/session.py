@@ -11,7 +11,9 @@ A :class:`Session` runs one exploration method on one object in front of a robot
 - :meth:`Session.tell` records the outcome: the method learns it, and it is in the
   log on disk before the call returns.
 - :meth:`Session.bound` is the Dirichlet lower bound p̂_ℓ of SPEC §5 on the success
-  rate of the current recommendations, and whether it exceeds ρ_min.
+  rate of the current recommendations (the paper's, ``p_lower``) and ours
+  (``p_lower_ours``, :mod:`legs_jax.stopping`, the one to stop on), and whether
+  each exceeds ρ_min.
 
 With ``given_poses`` (a problem file's reservoirs) the caller names the pose
 (``observe(pose=s)``) and the grasps are the problem's, in the pose frame; this
@@ -378,7 +380,9 @@ class Session:
 
     def bound(self, rho_min: float | None = None) -> dict:
         """The Dirichlet lower bound p̂_ℓ (SPEC §5) at the current step, over all
-        candidates (and over attempted grasps only), and whether p̂_ℓ ≥ ρ_min."""
+        candidates (and over attempted grasps only), and whether p̂_ℓ ≥ ρ_min
+        (``stop``); beside it our bound (``p_lower_ours``, NaN for a method without
+        per-grasp counts) and whether it is ≥ ρ_min (``stop_ours``)."""
         if rho_min is not None and (
             isinstance(rho_min, bool)
             or not isinstance(rho_min, (int, float))
@@ -390,10 +394,17 @@ class Session:
         else:
             lo, lo_att = self.loop.bound(self.counts, self.observed, self.step)
         out = {"step": self.step, "p_lower": lo, "p_lower_attempted": lo_att}
+        out["p_lower_ours"] = self._bound_ours()
         if rho_min is not None:
             out["rho_min"] = float(rho_min)
             out["stop"] = bool(lo >= rho_min)
+            out["stop_ours"] = bool(out["p_lower_ours"] >= rho_min)
         return out
+
+    def _bound_ours(self) -> float:
+        if not self.observed.any():
+            return 0.0
+        return self.loop.bound_ours(self.counts, self.observed, self.step)
 
     def status(self) -> dict:
         """Counters: step, successes, poses, the current pose, drop counts."""

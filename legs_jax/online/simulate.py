@@ -32,6 +32,40 @@ from legs_jax.online.store import atomic_write
 
 __all__ = ["EVAL_SAMPLES", "Simulation", "default_eval_every", "save_figure"]
 
+
+def _check_stop_at(stop_at) -> None:
+    if stop_at is not None and (
+        isinstance(stop_at, bool)
+        or not isinstance(stop_at, (int, float))
+        or not 0.0 <= stop_at <= 1.0
+    ):
+        raise InputError(f"the stopping threshold must be in [0, 1], got {stop_at!r}")
+
+
+def _plot_ours(ax, curve) -> None:
+    """Our bound on the learning curve, and the stop (ρ_min reached) if any."""
+    rows = [r for r in curve if "p_lower_ours" in r]
+    if rows:
+        ax.plot(
+            [r["step"] for r in rows],
+            [r["p_lower_ours"] for r in rows],
+            ":",
+            label="our bound (stops on it)",
+        )
+    for r in curve:
+        if r.get("stop"):
+            ax.axvline(r["step"], color="k", lw=1.0, alpha=0.6)
+            ax.annotate(
+                f"stop: bound {r['p_lower_ours']:.2f} ≥ ρ_min {r['rho_min']:.2f},"
+                f" true {r['performance']:.2f}",
+                (r["step"], 0.04),
+                fontsize=7,
+                ha="right",
+                rotation=90,
+                va="bottom",
+            )
+
+
 EVAL_SAMPLES = 50
 _RENDER, _EXECUTE, _MOVE, _EVAL = 0, 1, 2, 3
 
@@ -132,6 +166,7 @@ class Simulation:
         self.frames: dict[int, np.ndarray] = {}  # session pose -> pose frame map
         self._replay()
         self.curve = self._read_curve()
+        self.stopped = None  # the evaluation row a run stopped at (stop_at)
 
     # ----------------------------------------------------------------- replay
     def _rng(self, t: int, stream: int) -> np.random.Generator:
@@ -235,10 +270,12 @@ class Simulation:
                 self.robot.rng = self._rng(ses.step, _EVAL)
                 perf[true] = self.robot.success(c, a, samples=EVAL_SAMPLES)
                 self.robot.pose = keep
+        b = ses.bound()
         row = {
             "step": ses.step,
             "performance": float(lam @ perf),
-            "p_lower": ses.bound()["p_lower"],
+            "p_lower": b["p_lower"],
+            "p_lower_ours": b["p_lower_ours"],
             "poses": len(ses.grasps),
             "successes": ses.successes,
         }
@@ -258,8 +295,13 @@ class Simulation:
             fh.flush()
             os.fsync(fh.fileno())
 
-    def run(self, steps: int, progress: bool = True, on_step=None) -> None:
-        """Run until the session has ``steps`` outcomes."""
+    def run(
+        self, steps: int, progress: bool = True, on_step=None, stop_at=None
+    ) -> None:
+        """Run until the session has ``steps`` outcomes, or with ``stop_at`` (ρ_min)
+        until an evaluation finds our bound ``p_lower_ours`` ≥ ρ_min (the row is
+        marked ``"stop": true`` and kept in ``self.stopped``)."""
+        _check_stop_at(stop_at)
         bar = None
         if progress:
             from tqdm.auto import tqdm
@@ -276,7 +318,14 @@ class Simulation:
         while self.step < steps:
             self.run_step()
             if self.step % self.eval_every == 0 or self.step == steps:
-                self._record(self.evaluate())
+                row = self.evaluate()
+                stop = stop_at is not None and row["p_lower_ours"] >= stop_at
+                if stop:
+                    row.update(stop=True, rho_min=float(stop_at))
+                    self.stopped = row
+                self._record(row)
+                if stop:
+                    break
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(
@@ -314,6 +363,7 @@ class Simulation:
             label="Dirichlet bound p̂_ℓ",
             **mark,
         )
+        _plot_ours(ax, self.curve)
         ax.set_xlabel("grasp attempts")
         ax.set_ylim(0, 1)
         mode = (

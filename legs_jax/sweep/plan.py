@@ -16,7 +16,7 @@ import numpy as np
 
 from legs_jax import results as res
 
-RESULTS_VERSION = 1
+RESULTS_VERSION = 2  # 2: checks carry p_lower_eb (our stopping bound)
 
 # Sizes of --smoke: synthetic problems named like the real objects.
 SMOKE = dict(
