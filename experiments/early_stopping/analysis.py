@@ -205,7 +205,7 @@ def early_stopping_figure(res: Results, out: Path) -> tuple[Path, dict[str, Any]
     rho = res.manifest(exp).get("extra", {}).get("rho_min") or RHO_MIN
     summary, per_obj = _summaries(res, checks)
     sens = an.stopping_sensitivity(checks, rho, horizon)
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(12.5, 5.0))
     fig.subplots_adjust(left=0.06, right=0.99, top=0.8, bottom=0.36, wspace=0.3)
     styles = {
@@ -380,9 +380,9 @@ def _section(ctx: Mapping) -> list[str]:
             L.append(
                 f"- Ours on the {an.SET_LABELS.get(r['set'], r['set'])} set "
                 f"({role}): "
-                f"valid at {_pct(acc)} of the checks (target 95 %, "
+                f"valid at {pct(acc)} of the checks (target 95 %, "
                 f"{'reached' if acc >= 0.95 else 'not reached'}), "
-                f"{_pct(abs(tight), 2)} {'below' if tight >= 0 else 'above'} the "
+                f"{pct(abs(tight), 2)} {'below' if tight >= 0 else 'above'} the "
                 "true performance on average (target at most 5 points below)."
             )
         o = sens[sens["bound"] == "ours"]
@@ -390,7 +390,7 @@ def _section(ctx: Mapping) -> list[str]:
         if len(ok):
             L.append(
                 "- Stopping on ours (Dex-Net set): the accuracy of stopped runs is "
-                f"at least {_pct(float(ok['accuracy'].min()))} over the thresholds "
+                f"at least {pct(float(ok['accuracy'].min()))} over the thresholds "
                 "where a run stopped; the mean stopping step rises from "
                 f"{o['mean_stop_step'].min():.0f} to {o['mean_stop_step'].max():.0f}."
             )
