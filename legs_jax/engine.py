@@ -162,12 +162,12 @@ def _pose_sum(x: jax.Array) -> jax.Array:
 
     ``jnp.sum`` leaves the order to XLA, which picks it by shape and by program,
     so a run padded to more poses (zeros last) could differ from the unpadded one
-    in the last bit (and did, depending on which programs the process had built
-    before). Written out, padded poses add +0.0 after every real one, which
-    changes no bit, whatever the program. x [B, P] -> [B]."""
-    total = x[..., 0]
-    for s in range(1, x.shape[-1]):
-        total = total + x[..., s]
+    in the last bit (and did, on two host devices). A loop over the poses fixes
+    the order (XLA may turn additions written out into a reduction of its own
+    order); padded poses add +0.0 after every real one, which changes no bit.
+    x [B, P] -> [B]."""
+    cols = jnp.moveaxis(x, -1, 0)
+    total, _ = jax.lax.scan(lambda acc, c: (acc + c, None), cols[0], cols[1:])
     return total
 
 
