@@ -160,16 +160,32 @@ def env_step(
     return EnvState(ot, _next_pose(cdf, u[:, 1])), reward, live
 
 
+def _pose_sum(x: jax.Array) -> jax.Array:
+    """Σ over the last (pose) axis, strictly left to right: ((x_0 + x_1) + x_2) + ….
+
+    ``jnp.sum`` leaves the order to XLA, which picks it by shape and by program,
+    so a run padded to more poses (zeros last) could differ from the unpadded one
+    in the last bit (and did, on two host devices). A loop over the poses fixes
+    the order (XLA may turn additions written out into a reduction of its own
+    order); padded poses add +0.0 after every real one, which changes no bit.
+    x [B, P] -> [B]."""
+    cols = jnp.moveaxis(x, -1, 0)
+    total, _ = jax.lax.scan(lambda acc, c: (acc + c, None), cols[0], cols[1:])
+    return total
+
+
 def _performance(tables: Tables, ot: jax.Array, rec: jax.Array) -> jax.Array:
-    """Σ_s λ_s p[s, π(s)] per row; π(s) = -1 adds 0. rec [B, P] -> [B]."""
+    """Σ_s λ_s p[s, π(s)] per row, poses in order; π(s) = -1 adds 0.
+
+    rec [B, P] -> [B]."""
     P = rec.shape[1]
     p = tables.p[ot[:, None], jnp.arange(P)[None, :], jnp.maximum(rec, 0)]
     p = jnp.where(rec >= 0, p, 0.0)
-    return jnp.sum(tables.landing[ot] * p, axis=-1)
+    return _pose_sum(tables.landing[ot] * p)
 
 
 def _gap(tables: Tables, ot: jax.Array, rec: jax.Array) -> jax.Array:
-    total = jnp.sum(tables.landing[ot] * tables.p_star[ot], axis=-1)
+    total = _pose_sum(tables.landing[ot] * tables.p_star[ot])
     return total - _performance(tables, ot, rec)
 
 

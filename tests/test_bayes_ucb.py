@@ -40,7 +40,12 @@ def test_choice_is_the_highest_posterior_quantile(name):
     wins = rng.poisson(rng.uniform(0, 3, n)).astype(np.float32)
     losses = rng.poisson(rng.uniform(0, 6, n)).astype(np.float32)
     count = rng.integers(0, 400, (B, P)).astype(np.int32)
-    inner = inner._replace(alpha=inner.alpha + wins, beta=inner.beta + losses)
+    # a reachable state: an arm's α, β leave the prior only when it is attempted
+    inner = inner._replace(
+        alpha=inner.alpha + wins,
+        beta=inner.beta + losses,
+        attempted=jnp.asarray(wins + losses > 0),
+    )
     st = st._replace(inner=inner, count=jnp.asarray(count))
     s = jnp.asarray(rng.integers(0, P, B), jnp.int32)
     keys = jax.random.split(jax.random.key(0), B)
@@ -95,3 +100,104 @@ def test_counts_attempts_per_pose_and_prefers_the_uncertain(name):
     assert twin.select(0, np.random.default_rng(0)) == 0
     twin.update(0, 1, True)
     assert twin.count[0] == 1 and twin.alpha[0, 1] == 2.5
+
+
+def _ucb_rows(rng, rows, k, frac, grid):
+    """Random rows of a Bayes-UCB state at one pose: priors of q on a grid of
+    ``grid`` values (many exact ties of q), a fraction ``frac`` of arms attempted,
+    some invalid, and some attempted arms set to exactly the (α, β) of an untried
+    arm (ties between a tried and an untried arm)."""
+    q = (rng.integers(0, grid + 1, (rows, k)) / grid).astype(np.float32)
+    qc = np.clip(q, 0.01, 0.99).astype(np.float32)
+    one = np.float32(1.0)
+    a = one + one * qc
+    b = one + one * (one - qc)
+    att = rng.uniform(size=(rows, k)) < frac
+    a = np.where(att, a + rng.poisson(2, (rows, k)), a).astype(np.float32)
+    b = np.where(att, b + rng.poisson(3, (rows, k)), b).astype(np.float32)
+    mask = rng.uniform(size=(rows, k)) < 0.95
+    for i in range(0, rows, 3):  # a tried twin of the best untried prior
+        j = int(np.argmax(np.where(mask[i] & ~att[i], a[i], -1)))
+        t = int(rng.integers(k))
+        a[i, t], b[i, t], att[i, t], mask[i, t] = a[i, j], b[i, j], True, True
+    level = (1 - 1 / (rng.integers(0, 3000, rows) + 2.0)).astype(np.float32)
+    return level, a, b, mask, att
+
+
+@pytest.mark.parametrize("dense_from", [0.0, 2.0])
+def test_few_quantiles_choose_as_the_dense_computation(monkeypatch, dense_from):
+    """The K=2000 choice computes the quantiles of the attempted arms and of the
+    one dominant untried arm only (block by block, or in one dense pass when a row
+    has many candidates: ``dense_from`` forces either). With exact ties of q,
+    between untried arms and between a tried and an untried arm, it equals the
+    dense float32 argmax over every arm (ties: lowest id) on every row, and the
+    NumPy twin's dense float64 choice wherever the twin's top two quantiles are
+    exactly equal or at least 1e-4 apart (the float32 quantile's tolerance)."""
+    from legs_jax.methods import bayes_ucb_2000 as ucb
+
+    monkeypatch.setattr(ucb, "DENSE_FROM", dense_from)
+    monkeypatch.setattr(ucb, "FEW", 16)  # several blocks a row
+    rng = np.random.default_rng(5)
+    rows, k = 24, 120
+    ids = jnp.broadcast_to(jnp.arange(k, dtype=jnp.int32), (rows, k))
+    few = jax.jit(ucb.choose_few)
+    dense = jax.jit(lambda lv, a, b, m: ucb.choose_dense(lv, a, b, m, ids))
+    pb = hand_problem([1.0], [[1.0]], np.full((1, k), 0.5), np.full((1, k), 0.5))
+    twin = methods.get("bayes_ucb_2000").reference(pb, 0, dict(s=1.0, prior_offset=1.0))
+    compared = ties = 0
+    for frac in (0.0, 0.05, 0.4, 1.0):
+        level, a, b, mask, att = _ucb_rows(rng, rows, k, frac, grid=20)
+        got = np.asarray(few(level, a, b, mask, att))
+        np.testing.assert_array_equal(got, dense(level, a, b, mask), err_msg=f"{frac}")
+        for i in range(rows):
+            if not mask[i].any():
+                continue
+            twin.cand[0] = mask[i]
+            twin.alpha[0], twin.beta[0] = a[i], b[i]
+            twin.count[0] = round(1 / (1 - float(level[i]))) - 2
+            idx = np.flatnonzero(mask[i])
+            lv = 1 - 1 / (twin.count[0] + 2.0)
+            index = np.sort(stats.beta.ppf(lv, a[i, idx], b[i, idx]))
+            gap = index[-1] - index[-2] if idx.size > 1 else np.inf
+            if 0.0 < gap < 1e-4:
+                continue
+            ties += gap == 0.0
+            assert twin.select(0, rng) == got[i], f"frac {frac} row {i}"
+            compared += 1
+    assert compared >= 3 * rows and ties >= rows // 3
+
+
+def test_only_a_dominated_untried_arm_can_part_from_the_dense_float32_argmax():
+    """Where the choice over the few differs from the dense float32 argmax over
+    every arm, the dense one chose an untried arm of lower prior (α smaller, or
+    equal and β larger) whose float32 quantile rounded to at least the dominant
+    untried arm's: the exact quantile is monotone, its float32 value is not
+    strictly so. With q on a grid (exact ties only) they never differ."""
+    from legs_jax import sampling
+    from legs_jax.methods import bayes_ucb_2000 as ucb
+
+    rng = np.random.default_rng(11)
+    rows, k = 32, 150
+    ids = jnp.broadcast_to(jnp.arange(k, dtype=jnp.int32), (rows, k))
+    few = jax.jit(ucb.choose_few)
+    dense = jax.jit(lambda lv, a, b, m: ucb.choose_dense(lv, a, b, m, ids))
+    differ = 0
+    for grid, frac in ((20, 0.1), (20, 0.5), (1 << 20, 0.1), (1 << 20, 0.02)):
+        level, a, b, mask, att = _ucb_rows(rng, rows, k, frac, grid)
+        # untried priors near q = 0.99, where the quantile is close to 1
+        a = np.where(att, a, 1 + np.clip(a - 1, 0.9, 0.99)).astype(np.float32)
+        b = np.where(att, b, np.float32(3) - a).astype(np.float32)
+        got = np.asarray(few(level, a, b, mask, att))
+        old = np.asarray(dense(level, a, b, mask))
+        index = np.asarray(
+            sampling.beta_ppf(np.broadcast_to(level[:, None], a.shape), a, b)
+        )
+        top, _ = (np.asarray(x) for x in ucb.top_untried(a, b, mask, att))
+        for i in np.flatnonzero(got != old):
+            assert grid > 20
+            j, t = old[i], top[i]
+            assert not att[i, j] and got[i] == t
+            assert a[i, j] < a[i, t] or (a[i, j] == a[i, t] and b[i, j] > b[i, t])
+            assert index[i, j] >= index[i, t]
+            differ += 1
+    print(f"{differ} rows differ")

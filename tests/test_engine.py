@@ -254,6 +254,38 @@ def test_shape_buckets_are_bit_identical(method):
     assert (16, 8, 150) in shapes and (4, 5, 150) in shapes
 
 
+_BUCKETS_SCRIPT = textwrap.dedent(
+    """
+    import sys, jax
+    sys.path.insert(0, sys.argv[1])
+    import test_engine
+    assert len(jax.devices()) == 2, jax.devices()
+    test_engine.test_shape_buckets_are_bit_identical("tql")
+    """
+)
+
+
+def test_shape_buckets_are_bit_identical_on_two_host_devices():
+    """The bit-identity above in a process with two host devices, the state that
+    ``tests/test_sweep_plan.py`` leaves behind (the sweep's main() asks for host
+    devices through XLA_FLAGS before JAX starts), so the order of the test files
+    does not matter: a sum over poses left to XLA differed there in the last bit
+    of the final gap."""
+    env = dict(os.environ)
+    env["XLA_FLAGS"] = (
+        env.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
+    )
+    env["JAX_PLATFORMS"] = "cpu"
+    proc = subprocess.run(
+        [sys.executable, "-c", _BUCKETS_SCRIPT, os.path.dirname(__file__)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+
+
 def test_results_do_not_depend_on_device_count():
     """In a subprocess with 4 host devices: 8 rollouts on 1 device and sharded over
     4 devices (2 each) are bit-identical."""

@@ -6,8 +6,11 @@ original BORGES code shipped UCB beside Thompson sampling.
 At pose s, with t the number of grasp attempts made there so far counting this
 one, every candidate's index is the 1 − 1/(t + 1) quantile of its Beta posterior
 (SPEC §3; Kaufmann et al.'s c = 0, with t counted per pose); the highest index is
-attempted (ties: the lowest grasp id). The choice is deterministic: no random
-draw. Recommendation, learning and the stopping estimates are those of BORGES.
+attempted (ties: the lowest grasp id). Over all K grasps only the quantiles that
+can win are computed (:func:`choose_few`): those of the attempted grasps and of
+the one untried grasp whose prior dominates the other untried ones. The choice
+is deterministic: no random draw. Recommendation, learning and the stopping
+estimates are those of BORGES.
 :func:`make` builds it over every grasp or over the fixed top by prior
 (:mod:`legs_jax.methods.bayes_ucb_100`); :class:`Reference` is its NumPy twin.
 """
@@ -23,7 +26,13 @@ import numpy as np
 from legs_jax import reference as ref
 from legs_jax import sampling
 from legs_jax.methods import _dense, _slots
-from legs_jax.methods.base import TOP_FIXED, Method, argmin_id_of_max, gather_at
+from legs_jax.methods.base import (
+    TOP_FIXED,
+    Method,
+    argmax_first,
+    argmin_id_of_max,
+    gather_at,
+)
 
 __all__ = ["METHOD", "Reference", "UCBState", "make"]
 
@@ -36,6 +45,92 @@ class UCBState(NamedTuple):
 def level(count: jax.Array) -> jax.Array:
     """The quantile 1 − 1/(t + 1) for t = count + 1 attempts (this one included)."""
     return 1.0 - 1.0 / (count.astype(jnp.float32) + 2.0)
+
+
+def choose_dense(lv, a, b, mask, ids) -> jax.Array:
+    """The highest quantile at level ``lv`` [B] of every arm of ``mask`` [B, N]
+    (α ``a``, β ``b``, grasp ``ids``), ties to the lowest id: N quantiles a row."""
+    q = jnp.broadcast_to(lv[:, None], a.shape)
+    index = sampling.beta_ppf(q, jnp.where(mask, a, 1.0), jnp.where(mask, b, 1.0))
+    return argmin_id_of_max(index, mask, ids, none=0)
+
+
+def top_untried(a, b, mask, attempted) -> tuple[jax.Array, jax.Array]:
+    """The one untried arm that can hold the highest index among the untried arms
+    of a row: ([B] its grasp id, [B] bool there is one).
+
+    An untried arm still has its prior, Beta(o + s q, o + s (1 − q)): α rises and
+    β falls with q (float32 rounding is monotone), and the Beta quantile rises with
+    α and falls with β. So the untried arms of largest α, among them those of
+    smallest β, dominate all others; those have the same (α, β) bit for bit, hence
+    the same float32 quantile, and the dense argmax takes the lowest id of them.
+    """
+    untried = mask & ~attempted
+    a_top = jnp.max(jnp.where(untried, a, -jnp.inf), axis=-1, keepdims=True)
+    sel = untried & (a == a_top)
+    b_top = jnp.min(jnp.where(sel, b, jnp.inf), axis=-1, keepdims=True)
+    sel = sel & (b == b_top)
+    return argmax_first(sel), jnp.any(untried, axis=-1)
+
+
+# Arms whose quantile one pass of :func:`choose_few` computes, a row; where a
+# row of the batch has more candidates than DENSE_FROM K, every arm's quantile is
+# computed in one pass (and the non-candidates' ignored) instead.
+FEW = 256
+DENSE_FROM = 0.5
+
+
+def choose_few(lv, a, b, mask, attempted) -> jax.Array:
+    """:func:`choose_dense` over grasp ids 0..K-1, computing only the quantiles
+    that can win: the attempted arms and the :func:`top_untried` arm.
+
+    The candidates are packed, in id order, into blocks of ``FEW`` a row and their
+    quantiles computed block by block until every row's are done; each value is
+    the one the dense computation gets (:func:`legs_jax.sampling.beta_ppf` gives an
+    element a value that depends on its own (q, α, β) only), and ties go to the
+    lowest id. The choice equals the dense one's whenever the float32 quantile
+    is monotone across the untried arms (see README, Bayes-UCB).
+    """
+    B, K = a.shape
+    top, any_untried = top_untried(a, b, mask, attempted)
+    ids = jax.lax.broadcasted_iota(jnp.int32, (B, K), 1)
+    cand = mask & (attempted | ((ids == top[:, None]) & any_untried[:, None]))
+    most = jnp.max(jnp.sum(cand, axis=-1, dtype=jnp.int32))
+    return jax.lax.cond(
+        most > DENSE_FROM * K,
+        lambda: choose_dense(lv, a, b, cand, ids),
+        lambda: _blocks(lv, a, b, cand),
+    )
+
+
+def _blocks(lv, a, b, pending) -> jax.Array:
+    """:func:`choose_dense` over the arms of ``pending``, ``FEW`` a row at a time."""
+    B, K = a.shape
+    bi = jnp.arange(B)[:, None]
+    pack = jax.vmap(lambda m: sampling._pending_slots(m, FEW))
+
+    def body(carry):
+        pending, best, grasp = carry
+        slots = pack(pending)  # [B, FEW] ascending ids, K past the last
+        real = slots < K
+        g = jnp.minimum(slots, K - 1)
+        q = jnp.broadcast_to(lv[:, None], g.shape)
+        index = sampling.beta_ppf(
+            q, jnp.where(real, a[bi, g], 1.0), jnp.where(real, b[bi, g], 1.0)
+        )
+        index = jnp.where(real, index, -jnp.inf)
+        m = jnp.max(index, axis=-1)
+        at = jnp.min(jnp.where(real & (index == m[:, None]), g, K), axis=-1)
+        # blocks come in ascending ids: an equal value later loses (lowest id)
+        better = m > best
+        best = jnp.where(better, m, best)
+        grasp = jnp.where(better, at, grasp)
+        pending = pending.at[bi, slots].set(False, mode="drop")
+        return pending, best, grasp
+
+    init = (pending, jnp.full(B, -jnp.inf), jnp.zeros(B, jnp.int32))
+    _, _, grasp = jax.lax.while_loop(lambda c: jnp.any(c[0]), body, init)
+    return grasp
 
 
 def make(name: str, top: bool, **declaration) -> Method:
@@ -52,9 +147,13 @@ def make(name: str, top: bool, **declaration) -> Method:
         "reference": lambda problem, trial, hp: Reference(
             problem, trial, hp, top=TOP_FIXED if top else None
         ),
-        **({"cost": lambda cfg: float(cfg.top)} if top else {"dense": True}),
-        # the benchmark's method with the same per-step work (projection)
-        "bench_proxy": "legs" if top else "borges_2000",
+        # K=100: the benchmark's method with the same per-step work (projection);
+        # K=2000 computes few quantiles a step, however many arms: its own row
+        **(
+            {"cost": lambda cfg: float(cfg.top), "bench_proxy": "legs"}
+            if top
+            else {"dense": True, "bench": True}
+        ),
         **declaration,
     }
 
@@ -69,18 +168,16 @@ def make(name: str, top: bool, **declaration) -> Method:
     def select(st, ctx, cfg, s, key):  # key unused: the choice is deterministic
         a = gather_at(st.inner.alpha, s)
         b = gather_at(st.inner.beta, s)
+        lv = level(gather_at(st.count, s))
         if top:
             ids = gather_at(st.inner.gid, s)
             mask = ids >= 0
-        else:
-            mask = _dense._mask_row(st.inner, ctx, s)
-            ids = jax.lax.broadcasted_iota(jnp.int32, a.shape, 1)
-        q = jnp.broadcast_to(level(gather_at(st.count, s))[:, None], a.shape)
-        index = sampling.beta_ppf(q, jnp.where(mask, a, 1.0), jnp.where(mask, b, 1.0))
-        grasp = argmin_id_of_max(index, mask, ids, none=0)  # ties: lowest grasp id
-        if top:
+            grasp = choose_dense(lv, a, b, mask, ids)
             slot = jnp.argmax(ids == grasp[:, None], axis=-1).astype(jnp.int32)
             return grasp, slot, (a, b, ids)
+        mask = _dense._mask_row(st.inner, ctx, s)
+        att = gather_at(st.inner.attempted, s)
+        grasp = choose_few(lv, a, b, mask, att)
         return grasp, grasp, (a, b, mask)
 
     def update(st, ctx, cfg, s, grasp, slot, reward, live):
