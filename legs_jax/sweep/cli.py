@@ -102,7 +102,8 @@ def build_parser() -> argparse.ArgumentParser:
         action="extend",
         metavar="NAME",
         help="run on these objects or sets (dexnet_adv, egad_eval) instead of each "
-        "experiment's own list; problem files are built when missing",
+        "experiment's own list (from the shipped problem set, or built with "
+        "--problem-source built)",
     )
     what.add_argument(
         "--problems",
