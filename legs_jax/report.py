@@ -345,7 +345,7 @@ def _results_section(ctx: Mapping) -> list[str]:
         "| experiment | status | objects | trials × rollouts | horizon | computed at |",
         "|:---|:---|---:|:---:|---:|:---|",
     ]
-    smoke = []
+    smoke, unshipped = [], []
     for exp in _EXPERIMENTS:
         if not res.has(exp, "runs"):
             lines.append(f"| {exp} | missing | — | — | — | — |")
@@ -368,6 +368,12 @@ def _results_section(ctx: Mapping) -> list[str]:
             commit += " (modified)"
         if (man.get("config") or {}).get("smoke"):
             smoke.append(exp)
+        files = man.get("problem_files") or {}
+        if files and not {str(f.get("source", "built")) for f in files.values()} <= {
+            "shipped",
+            "generated",
+        }:
+            unshipped.append(exp)
         n_obj = runs["object"].nunique() if "object" in runs else 0
         t = runs["trial"].nunique() if "trial" in runs else 0
         r = runs["rollout"].nunique() if "rollout" in runs else 0
@@ -380,6 +386,15 @@ def _results_section(ctx: Mapping) -> list[str]:
         "(each manifest lists every chunk's commit and host).",
         "",
     ]
+    if unshipped:
+        lines += [
+            f"> **Note:** {', '.join(unshipped)} were made from problem files built "
+            "on one machine, not from the shipped problem set (`data/problemset/`, "
+            "the same bytes on every machine); a build on another processor "
+            "differs, so these results can be checked only by recomputing them on "
+            "the shipped set (`python -m legs_jax.sweep --all --overwrite`).",
+            "",
+        ]
     if smoke:
         lines += [
             f"> **Warning:** {', '.join(smoke)} hold smoke-test results (toy "

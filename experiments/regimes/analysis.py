@@ -195,8 +195,28 @@ def summarise(run: Run) -> dict[str, Any]:
             rows.append(row)
         out["horizons"] = pd.DataFrame(rows)
     real, why = real_objects(run)
+    if real is not None and not why:
+        why = _main_source_note(run)
     out["real"], out["real_note"] = real, why
     return out
+
+
+def _main_source_note(run: Run) -> str:
+    """A caveat when main's results were not made from the problem files whose
+    features place the real objects (the shipped set)."""
+    try:
+        files = run.res.manifest("main").get("problem_files") or {}
+    except Exception:  # noqa: BLE001 - no manifest: nothing to say
+        return ""
+    sources = {str(f.get("source", "built")) for f in files.values()}
+    if not files or sources == {"shipped"}:
+        return ""
+    return (
+        "their LEGS − BORGES (K=100) comes from `main`'s results, made from the "
+        "previous round's problem files, built on another machine; the features "
+        "are measured on the shipped problem set, and the two agree once `main` "
+        "is recomputed on it"
+    )
 
 
 # ===================================================================== tables
