@@ -99,7 +99,16 @@ def shared_run(name: str) -> dict[str, np.ndarray]:
 
 def _check_rollouts(name, tables, o, ot, horizon):
     """Masks, candidate sets, finiteness and counters of a batch of rollouts."""
-    chex.assert_tree_all_finite({k: v for k, v in o.items() if v.dtype.kind == "f"})
+    floats = {k: v for k, v in o.items() if v.dtype.kind == "f"}
+    eb = floats.pop("check_p_lower_eb", None)
+    chex.assert_tree_all_finite(floats)
+    if eb is not None:
+        # our bound needs per-grasp counts: finite for a method that keeps them,
+        # NaN by contract for one that does not (TQL, the constant rows)
+        if methods.get(name).counts is None:
+            assert np.all(np.isnan(eb)), name
+        else:
+            assert np.all(np.isfinite(eb) & (eb >= 0) & (eb <= 1 + 1e-6)), name
     pose, grasp, live = o["pose"], o["grasp"], o["live"]  # [..., B, H]
     assert pose.shape[-1] == horizon
     ot_ = np.broadcast_to(np.asarray(ot)[:, None], pose.shape)
