@@ -47,7 +47,9 @@ def world(tmp_path_factory):
 
 def test_everything_renders(world):
     out = world["out1"]
-    assert world["p1"] == []
+    # the fixture makes the paper's experiments; regimes has its own fixture test
+    # (tests/test_regimes.py) and is skipped here, which generate() reports
+    assert [p for p in world["p1"] if not p.startswith("regimes:")] == []
     for t in TABLES:
         for ext in ("md", "tex"):
             f = out / "tables" / f"{t}.{ext}"

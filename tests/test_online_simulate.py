@@ -82,7 +82,7 @@ def test_learning_curve_has_marked_points(tmp_path, clamp_problem, monkeypatch):
     assert cli.main([*args, "--compile-cache", "off"]) == 0
     steps = [r["step"] for r in _curve(out)]
     assert steps == list(range(0, 201, 4))
-    assert len(drawn["lines"]) == 3  # success rate, gap, bound
+    assert len(drawn["lines"]) == 4  # success rate, gap, the paper's bound, ours
     assert all(m not in (None, "", "None") and n == 51 for m, n in drawn["lines"])
 
 

@@ -51,6 +51,8 @@ def _plot_ours(ax, curve) -> None:
             [r["p_lower_ours"] for r in rows],
             ":",
             label="our bound (stops on it)",
+            marker="o",
+            markersize=2.5,
         )
     for r in curve:
         if r.get("stop"):
