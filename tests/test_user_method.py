@@ -8,6 +8,7 @@ method breaks the contract, is refused in one line."""
 from __future__ import annotations
 
 import re
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +35,9 @@ def user_package(tmp_path, monkeypatch):
     (pkg / "my_method.py").write_text(_readme_method())
     (pkg / "broken.py").write_text("METHOD = 'not a method'\n")
     monkeypatch.syspath_prepend(str(tmp_path / "user_src"))
+    # a my_pkg imported by an earlier test lives in another folder: forget it
+    for name in [m for m in sys.modules if m == "my_pkg" or m.startswith("my_pkg.")]:
+        monkeypatch.delitem(sys.modules, name)
     return pkg
 
 
@@ -100,9 +104,14 @@ def test_a_method_selecting_an_out_of_range_grasp_is_refused_in_one_line(
 ):
     """Issue 26, 4: a grasp id past the tables (here 1999 of 160) is refused by
     the conformance check in one line, as NaN estimates are, not an IndexError."""
-    code = _readme_method().replace(
-        "    return grasp, grasp, None",
-        "    grasp = jnp.full_like(grasp, 1999)\n    return grasp, grasp, None",
+    code = (
+        _readme_method()
+        .replace(
+            "    return grasp, grasp, None",
+            "    grasp = jnp.full_like(grasp, 1999)\n    return grasp, grasp, None",
+        )
+        # a name of its own: the README's method may be registered already
+        .replace('name="eps_greedy"', 'name="eps_far"')
     )
     assert code != _readme_method()
     (user_package / "far.py").write_text(code)
