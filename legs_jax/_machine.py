@@ -4,12 +4,14 @@ versions of the packages that compute."""
 
 from __future__ import annotations
 
+import functools
 import platform
 
 __all__ = ["machine"]
 
 
-def machine() -> dict[str, str]:
+@functools.cache
+def _machine() -> tuple[tuple[str, str], ...]:
     """The processor (model and instruction-set class) and the versions of the
     packages that can change a build's bits."""
     from importlib import metadata
@@ -56,4 +58,10 @@ def machine() -> dict[str, str]:
             out[pkg] = metadata.version(pkg)
         except metadata.PackageNotFoundError:
             out[pkg] = "absent"
-    return out
+    return tuple(out.items())
+
+
+def machine() -> dict[str, str]:
+    """The processor (model and instruction-set class) and the versions of the
+    packages that can change a build's bits (read once a process)."""
+    return dict(_machine())

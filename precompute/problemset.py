@@ -23,7 +23,6 @@ ship`` writes it.
 
 from __future__ import annotations
 
-import hashlib
 import json
 from collections.abc import Sequence
 from pathlib import Path
@@ -32,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from legs_jax._machine import machine
+from legs_jax.results import sha256_file
 
 from . import catalog as _catalog
 from .errors import PrecomputeError
@@ -68,14 +68,6 @@ def set_dir(data_dir: Path | None = None) -> Path:
 def _rel(info, prior: str) -> str:
     sub = "" if prior == "learned" else f"prior-{prior}/"
     return f"{sub}{info.set}/{info.name}.npz"
-
-
-def sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def manifest(data_dir: Path | None = None) -> dict[str, Any]:
@@ -217,22 +209,18 @@ def pack(
     return man
 
 
-def _quantized(pb):
-    """The arrays of a built problem as the shipped encoding holds them."""
-    from legs_jax import problem as problem_mod
-
-    return {"prior": problem_mod.dequantize_prior(problem_mod.quantize_prior(pb.prior))}
-
-
 def compare_problems(built, shipped, geometry_trials: int) -> dict[str, str]:
     """Array -> how ``built`` differs from ``shipped`` (only differing arrays).
 
     q is compared after the 16-bit quantisation the shipped set applies; grasp
     geometry only over the trials the shipped file holds."""
+    from legs_jax import problem as problem_mod
+
     diff: dict[str, str] = {}
-    q = _quantized(built)
+    # q as the shipped encoding holds it
+    q = problem_mod.dequantize_prior(problem_mod.quantize_prior(built.prior))
     for f in _ENGINE + _GEOM:
-        a = q.get(f, getattr(built, f))
+        a = q if f == "prior" else getattr(built, f)
         b = getattr(shipped, f)
         if f in _GEOM and f != "pose_transform":
             if geometry_trials == 0:
