@@ -205,7 +205,8 @@ def main(args) -> int:
             "",
             f"{args.recognition_rollouts} sessions with 640×480 depth images, pose "
             "recognition and reservoirs of 2000 grasps sampled on the first image of "
-            "each pose, scored by the geometric stand-in prior (not the problem's). "
+            "each pose, scored by the learned prior on the session's own image "
+            "(the problem's network, not the problem's q). "
             "The gap uses the problem's p*_s and the true success probability of the "
             "recommended grasp estimated from 50 perturbed executions (0 for a pose "
             "not seen yet, whereas the engine starts from the prior's best grasp of "

@@ -53,6 +53,14 @@ def _session_args(p: argparse.ArgumentParser) -> None:
         help="grasps sampled for each new pose (2000)",
     )
     p.add_argument(
+        "--prior",
+        choices=("learned", "geometric"),
+        default=None,
+        help="what scores a new pose's grasps: learned (default; the network that "
+        "scores the problem files, on the session's depth image) or geometric (a "
+        "stand-in from the edge normals alone); kept by a resumed session",
+    )
+    p.add_argument(
         "--hparam",
         action="append",
         default=[],
@@ -297,6 +305,7 @@ def _serve(args) -> int:
     try:
         if (args.dir / "session.json").exists():
             session = Session.open(args.dir)
+            _same_prior(session, args.prior)
         else:
             if args.camera_pose is not None:
                 try:
@@ -313,6 +322,7 @@ def _serve(args) -> int:
                 max_poses=args.max_poses,
                 reservoir_size=args.reservoir,
                 camera_pose=cam,
+                prior=args.prior or "learned",
             )
     except (InputError, OrderError, StateError, ConfigError) as e:
         return refuse(e)  # the robot program reads JSON lines, errors too
@@ -341,6 +351,17 @@ def _print_stop(sim, stop_at) -> None:
         f"{stop_at:.3f}; true success rate of the recommendations "
         f"{r['performance']:.3f} (the paper's bound {r['p_lower']:.3f})"
     )
+
+
+def _same_prior(session, prior: str | None) -> None:
+    """A resumed session keeps its prior: refuse another one named anew."""
+    had = session.store.config.get("prior", "learned")
+    if prior is not None and prior != had:
+        session.close()
+        raise InputError(
+            f"the session in {session.store.folder} scores new poses with the "
+            f"{had} prior; --prior {prior} cannot change it (leave --prior out)"
+        )
 
 
 def _simulate(args) -> int:
@@ -412,7 +433,10 @@ def _simulate(args) -> int:
         reservoir_size=args.reservoir,
         eval_every=args.eval_every,
         steps=args.steps,
+        prior=args.prior or "learned",
     )
+    if args.resume:
+        _same_prior(sim.session, args.prior)
     try:
         sim.run(sim.steps, progress=not args.quiet, stop_at=args.stop_at)
         fig = sim.figure()

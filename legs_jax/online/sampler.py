@@ -16,20 +16,32 @@ width (the contact distance).
 
 The prior
 ---------
-The learned prior (a GQ-CNN-like network, :mod:`precompute.learned`) scores the
-problem files' reservoirs from precompute's rendered depth images; the online
-session does not use it yet (its crops would have to be taken from the session's
-own camera), so new poses are scored by :func:`geometric_prior`, a stand-in
-that reads nothing but the image: it scores
-a grasp by how well its two edge normals oppose each other along the jaw axis,
-mapped to [0.3, 0.7]; it knows nothing of the ground truth. A learned prior plugs
-in as any function with the signature of :func:`geometric_prior`
-(``Session.create(prior=...)``).
+New poses are scored by the learned prior (the GQ-CNN-style network of
+:mod:`precompute.gqcnn`, the weights ``precompute`` scores the problem files with),
+from the session's own depth image: :func:`prior_view` turns the image into the
+view the network was trained on (the camera of :mod:`precompute.depth`, 0.7 m
+straight above the object, 4 mm pixels at the table: the image's table-frame
+points, shifted so that the visible object's centroid is under that camera,
+projected into it and averaged per pixel, as ``precompute.depth.downsample``
+averages 3 × 3 sensor pixels; pixels no point falls into take their nearest
+neighbour's value), and :func:`learned_prior` cuts each grasp's crop there. It
+reads nothing but the image and the grasps. A camera of another geometry works
+through the same resampling, but the network was trained on views of that one
+camera and its noise only.
+
+When the weights are missing (a checkout without ``precompute/prior_weights``),
+:func:`default_prior` falls back to :func:`geometric_prior`, a stand-in that
+reads the edge normals alone (how antipodal the two contacts are, mapped to
+[0.3, 0.7]) and says so in a warning and in the session's records. Any function
+``f(grasps, view) -> q [K]`` plugs in as the prior (``Session.create(prior=f)``),
+``view`` a :class:`View` of the image the grasps were sampled on.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import warnings
+from typing import NamedTuple
 
 import numpy as np
 from scipy import ndimage
@@ -42,7 +54,12 @@ __all__ = [
     "DEPTH_OFFSETS",
     "FRICTION",
     "Grasps",
+    "View",
+    "default_prior",
     "geometric_prior",
+    "learned_prior",
+    "prior_name",
+    "prior_view",
     "sample_grasps",
 ]
 
@@ -74,9 +91,101 @@ class Grasps:
         )
 
 
-def geometric_prior(grasps: Grasps) -> np.ndarray:
+class View(NamedTuple):
+    """The image a pose's grasps were sampled on."""
+
+    depth: np.ndarray  # [H, W] metres, NaN where there is no reading
+    intrinsics: Intrinsics
+    camera_pose: np.ndarray  # [4, 4] camera -> table
+
+
+def geometric_prior(grasps: Grasps, view: View | None = None) -> np.ndarray:
     """[K] stand-in prior quality in [0.3, 0.7] from the edge normals alone."""
     return 0.3 + 0.4 * np.clip(grasps.alignment, 0.0, 1.0)
+
+
+def prior_view(view: View):
+    """(image, offset): the session's depth image as the learned prior's camera
+    would see it (a :class:`precompute.depth.DepthImage` of 4 mm pixels, the
+    camera 0.7 m above the object) and the table-frame offset [3] (the visible
+    object's centroid in x and y) to subtract from grasp centres for it."""
+    from precompute import depth as D
+
+    pts = deproject(view.depth, view.intrinsics, view.camera_pose).reshape(-1, 3)
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    obj = pts[:, 2] > MIN_HEIGHT
+    if not obj.any():
+        raise ValueError("no object in view")
+    offset = np.array([*pts[obj, :2].mean(axis=0), 0.0])
+    pts = pts - offset
+    pts = pts[pts[:, 2] < D.HEIGHT - 0.05]  # in front of the camera
+    f = D.DOWNSAMPLE
+    uv_obj = D.project(pts[pts[:, 2] > MIN_HEIGHT])
+    lo = np.floor(uv_obj.min(axis=0)) - D.MARGIN_PX
+    hi = np.ceil(uv_obj.max(axis=0)) + D.MARGIN_PX
+    w, h = (np.ceil((hi - lo + 1) / f)).astype(int)
+    u0, v0 = lo + (f - 1) / 2.0  # centre of resized pixel [0, 0] (sensor u, v)
+    uv = D.project(pts)
+    col = np.rint((uv[:, 0] - u0) / f).astype(np.int64)
+    row = np.rint((uv[:, 1] - v0) / f).astype(np.int64)
+    inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
+    cell = row[inside] * w + col[inside]
+    depth = D.HEIGHT - pts[inside, 2]
+    total = np.bincount(cell, weights=depth, minlength=h * w)
+    count = np.bincount(cell, minlength=h * w)
+    img = np.full(h * w, np.nan)
+    img[count > 0] = total[count > 0] / count[count > 0]
+    img = img.reshape(h, w)
+    missing = np.isnan(img)
+    if missing.all():
+        raise ValueError("the image holds no point near the object")
+    if missing.any():
+        idx = ndimage.distance_transform_edt(
+            missing, return_distances=False, return_indices=True
+        )
+        img = img[tuple(idx)]
+    return D.DepthImage(img.astype(np.float32), float(u0), float(v0), f), offset
+
+
+def learned_prior(grasps: Grasps, view: View) -> np.ndarray:
+    """[K] q of table-frame grasps from the learned prior's network, seen in
+    ``view`` (:func:`prior_view`); the weights :mod:`precompute.learned` ships."""
+    from precompute import learned
+
+    if len(grasps) == 0:
+        return np.zeros(0)
+    image, offset = prior_view(view)
+    centers = (grasps.center - offset).astype(np.float32)
+    return learned._scorer()(image, centers, grasps.axis.astype(np.float32))
+
+
+def default_prior(name: str = "learned"):
+    """The prior named ``name`` ("learned" or "geometric"); the learned prior
+    falls back to the geometric stand-in, with a warning that says so, where
+    its weights are missing."""
+    from precompute import learned
+
+    if name not in ("learned", "geometric"):
+        raise ValueError(f"unknown prior {name!r}; one of learned, geometric")
+    if name == "geometric":
+        return geometric_prior
+    if learned.available():
+        return learned_prior
+    warnings.warn(
+        "the learned prior's weights are missing (precompute/prior_weights): new "
+        "poses are scored by the geometric stand-in prior",
+        stacklevel=2,
+    )
+    return geometric_prior
+
+
+def prior_name(prior) -> str:
+    """How a prior is named in the session's records."""
+    if prior is learned_prior:
+        return "learned"
+    if prior is geometric_prior:
+        return "geometric"
+    return f"custom: {getattr(prior, '__qualname__', type(prior).__name__)}"
 
 
 def _empty() -> Grasps:

@@ -5,7 +5,7 @@ A :class:`Session` runs one exploration method on one object in front of a robot
 - :meth:`Session.observe` (depth image, intrinsics) recognises the object's stable
   pose (:mod:`legs_jax.online.recognition`); a new pose is cached and gets a
   reservoir of grasps sampled on the image (:mod:`legs_jax.online.sampler`),
-  scored by the prior.
+  scored by the learned prior (:func:`legs_jax.online.sampler.learned_prior`).
 - :meth:`Session.ask` returns the grasp to execute, mapped from the pose's frame
   through the recognised alignment into the table and camera frames.
 - :meth:`Session.tell` records the outcome: the method learns it, and it is in the
@@ -68,7 +68,8 @@ class Session:
         self.seed = int(cfg["seed"])
         self.camera_pose = np.asarray(cfg["camera_pose"], np.float64)
         self.given = bool(cfg.get("given_poses", False))
-        self.prior = prior or sampler_mod.geometric_prior
+        # a callable, or the name of the prior the session was created with
+        self._prior = prior if prior is not None else cfg.get("prior", "learned")
         self.loop = Loop(
             self.method,
             self.max_poses,
@@ -120,11 +121,19 @@ class Session:
           given_poses: pose index → arrays ``center`` [K, 3], ``axis`` [K, 3],
             ``width`` [K], ``q`` [K], ``valid`` [K] (pose frame): the poses are
             named by the caller and recognition is off.
-          prior: ``f(grasps) -> q [K]`` for new poses (default: the geometric
-            stand-in, :func:`legs_jax.online.sampler.geometric_prior`).
+          prior: ``"learned"`` (default: :func:`legs_jax.online.sampler.learned_prior`,
+            or the geometric stand-in, with a warning, where its weights are
+            missing), ``"geometric"`` (the stand-in) or a function
+            ``f(grasps, view) -> q [K]`` (give it again to :meth:`open`).
         """
         if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
             raise InputError(f"seed must be an integer >= 0, got {seed!r}")
+        if prior is None:
+            prior = "learned"
+        if isinstance(prior, str) and prior not in ("learned", "geometric"):
+            raise InputError(
+                f"prior must be learned, geometric or a function, got {prior!r}"
+            )
         for name, v, lo in (
             ("max_poses", max_poses, 1),
             ("reservoir_size", reservoir_size, 1),
@@ -147,6 +156,7 @@ class Session:
             "reservoir_size": int(K),
             "camera_pose": cam.tolist(),
             "given_poses": given_poses is not None,
+            "prior": prior if isinstance(prior, str) else "custom",
             "note": note,
         }
         store = Store.create(folder, config)
@@ -175,6 +185,18 @@ class Session:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+    @property
+    def prior(self) -> Callable:
+        """The prior that scores new poses' grasps."""
+        if self._prior == "custom":
+            raise StateError(
+                "this session was created with a prior function of its own: give "
+                "it again, Session.open(folder, prior=f)"
+            )
+        if isinstance(self._prior, str):
+            self._prior = sampler_mod.default_prior(self._prior)
+        return self._prior
 
     # ------------------------------------------------------------ the records
     def _apply(self, r: dict, replay: bool) -> None:
@@ -286,7 +308,8 @@ class Session:
             g = sampler_mod.sample_grasps(
                 d, intr, self.camera_pose, self.reservoir_size, rng
             )
-            q = np.asarray(self.prior(g), np.float64)
+            view = sampler_mod.View(d, intr, self.camera_pose)
+            q = np.asarray(self.prior(g, view), np.float64)
             if q.shape != (len(g),) or not np.all(np.isfinite(q)):
                 raise InputError(
                     f"the prior returned shape {q.shape}; expected ({len(g)},) finite"
@@ -302,12 +325,18 @@ class Session:
                 "valid": np.arange(K) < len(g),
             }
             name, sha = self.store.write_pose(s, arrays)
-            record.update(pose=s, new=True, file=name, sha256=sha)
+            record.update(
+                pose=s,
+                new=True,
+                file=name,
+                sha256=sha,
+                prior=sampler_mod.prior_name(self.prior),
+            )
         else:
             record.update(pose=int(match.pose), new=False)
         self._apply(self.store.append(record), replay=False)
         R = match.transform[:3, :3]
-        return {
+        out = {
             "pose": record["pose"],
             "new": record["new"],
             "fraction": record["fraction"],
@@ -316,6 +345,9 @@ class Session:
             "translation": match.transform[:3, 3].tolist(),
             "grasps": self.loop.n_valid(record["pose"]),
         }
+        if record["new"]:
+            out["prior"] = record["prior"]
+        return out
 
     def ask(self) -> dict:
         """The grasp to execute in the current pose: its id, the jaw centre and

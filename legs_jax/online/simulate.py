@@ -91,6 +91,7 @@ class Simulation:
         reservoir_size: int = 2000,
         eval_every: int | None = None,
         steps: int | None = None,
+        prior: str = "learned",
     ):
         self.folder = Path(folder)
         self.world = world
@@ -147,6 +148,7 @@ class Simulation:
                 max_poses=max_poses,
                 reservoir_size=reservoir_size,
                 given_poses=given,
+                prior=prior,
                 note=f"simulated robot: {world.name}",
             )
             self.steps = int(steps if steps is not None else 1000)
