@@ -137,3 +137,24 @@ def test_a_users_mesh_is_skipped_when_current_and_simulated(tmp_path):
     ), r.stderr
     assert r.stderr.strip().count("\n") == 0
     assert np.isfinite(problem_mod.load(dest).landing).all()
+
+
+def test_a_catalogue_object_runs_on_the_shipped_problem(tmp_path, monkeypatch, capsys):
+    """On a fresh clone (no problem built on this machine) the README's
+    ``simulate --object bar_clamp --given-poses`` runs on the shipped file; a
+    trial whose grasp geometry the shipped set leaves out is refused in one line."""
+    import precompute.build
+
+    monkeypatch.setattr(precompute.build, "problems_dir", lambda: tmp_path / "none")
+    args = ["simulate", "--object", "bar_clamp", "--given-poses", "--quiet"]
+    args += ["--compile-cache", "off", "--steps", "20", "--eval-every", "10"]
+    assert cli.main([*args, "--out", str(tmp_path / "a")]) == 0, capsys.readouterr()
+    out = capsys.readouterr().out
+    assert "20 grasps" in out and "gap" in out  # the shipped file's p* gives a gap
+    curve = _curve(tmp_path / "a")
+    assert [r["step"] for r in curve] == [0, 10, 20]
+    assert all(0 <= r["performance"] <= 1 for r in curve)
+    rc = cli.main([*args, "--trial", "3", "--out", str(tmp_path / "b")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "trial 3" in err and "precompute --objects bar_clamp" in err
+    assert "Traceback" not in err and not (tmp_path / "b").exists()

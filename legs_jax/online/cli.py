@@ -331,12 +331,21 @@ def _serve(args) -> int:
 
 
 def _find_problem(name: str):
+    """The problem file of catalogue object ``name``: built on this machine
+    (``python -m precompute``) when there is one, else the shipped one, else None."""
     import precompute
+    from precompute import problemset
     from precompute.build import problem_path, problems_dir
+    from precompute.errors import PrecomputeError
 
     info = precompute.catalog.lookup(name)
     path = problem_path(info, problems_dir())
-    return path if path.is_file() else None
+    if path.is_file():
+        return path
+    try:
+        return problemset.paths([name])[name]
+    except PrecomputeError:
+        return None
 
 
 def _print_stop(sim, stop_at) -> None:
@@ -404,6 +413,18 @@ def _simulate(args) -> int:
                 raise InputError(f"cannot read problem file {path}: {e}") from None
             if name is not None and mesh is None and pb.name != name:
                 raise InputError(f"{path} is the problem of {pb.name}, not {name}")
+            g = pb.meta.get(
+                "geometry_trials", None if pb.meta.get("geometry", True) else 0
+            )
+            if args.given_poses and g is not None and args.trial >= g:
+                held = f"trials 0-{g - 1}" if g > 1 else "trial 0" if g else "no trial"
+                raise InputError(
+                    f"--given-poses needs the grasps of trial {args.trial}, but the "
+                    f"problem file {path} holds the grasp geometry of {held} only "
+                    f"(the shipped set keeps it for the objects that figures draw): "
+                    f"build the file with python -m precompute --objects {pb.name}"
+                    + (", or choose --trial 0" if g else "")
+                )
             world = World.from_problem(pb, mesh_path=mesh, problem_path=path)
         else:
             if args.given_poses:
