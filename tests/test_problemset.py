@@ -169,7 +169,8 @@ def test_built_source_is_refused_before_building_on_shipped_results(
 def test_a_rebuild_here_equals_the_shipped_set() -> None:
     """Drift check: the smallest catalogue object (G3, 2 poses), rebuilt from its
     mesh with one reservoir, equals trial 0 of the shipped file in every array
-    (q after the shipped 16-bit quantisation); a difference names the arrays.
+    (q after the shipped 16-bit quantisation, up to a few levels where XLA's
+    kernels differ); a difference names the arrays.
 
     The shipped set was built on an AMD EPYC (AVX2, no AVX-512): on a processor
     where Embree, NumPy or XLA pick other kernels this is the test that says
@@ -205,4 +206,13 @@ def test_a_rebuild_here_equals_the_shipped_set() -> None:
         },
     )
     diff = problemset.compare_problems(built, first, 0)
+    # Everything but q must be equal. q comes from XLA's float32 network, whose
+    # kernels follow the processor's instruction set: on an AVX-512 machine a
+    # few grasps move by one or two 16-bit levels (measured: 93 of 4000 G3
+    # entries, at most 1.5e-5); more than that is drift.
+    q_diff = diff.pop("prior", None)
     assert diff == {}, f"G3 rebuilt here differs from the shipped set: {diff}"
+    q = pm.dequantize_prior(pm.quantize_prior(built.prior))
+    dq = np.abs(q.astype(np.float64) - first.prior.astype(np.float64))
+    assert dq.max() <= 3.0 / pm.PRIOR_LEVELS, f"q differs beyond rounding: {q_diff}"
+    assert np.mean(dq > 0) < 0.05, f"q differs in too many grasps: {q_diff}"
