@@ -7,12 +7,17 @@ cloud is compared with every cached pose's cloud over 3600 yaws (0.1°) about th
 vertical (the optical axis of an overhead camera) by the observed → cached half
 of the chamfer distance, searched coarse to fine: all 360 whole degrees, then the
 0.1° yaws within ±1° of the best ``REFINE`` coarse ones (a 1° step moves a point
-5 cm from the centre by 0.9 mm, under the tolerance). The best yaw is refined by
-trimmed ICP (rotation about the vertical and a translation; the 80 % closest
-pairs). The clouds show the same pose when at least ``MATCH_FRACTION`` = 80 % of
-the observed points lie within ``TOLERANCE`` of the cached cloud and 80 % of the
-cached points within it of the observed cloud (both ways, so that a cloud that
-covers only part of another is no match). Otherwise the cloud is cached as a new
+5 cm from the centre by 0.9 mm, under the tolerance). The search reads the
+distances from a :class:`DistanceGrid` of the cached pose (2 mm lattice, built
+once, the first time the pose is a candidate: nearest node for the coarse yaws,
+trilinear for the fine ones) instead of searching a KD-tree for each point. The
+best yaw is refined by trimmed ICP (rotation about the vertical and a
+translation; the 80 % closest pairs) on ``ICP_POINTS`` of the observed points;
+the fractions below use every point and exact nearest neighbours. The clouds
+show the same pose when at least ``MATCH_FRACTION`` = 80 % of the observed points
+lie within ``TOLERANCE`` of the cached cloud and 80 % of the cached points within
+it of the observed cloud (both ways, so that a cloud that covers only part of
+another is no match). Otherwise the cloud is cached as a new
 pose.
 
 The paper prints a tolerance of 0.02 mm, far below the noise of any depth sensor
@@ -28,8 +33,9 @@ histogram of distance from the centroid's vertical × height) are aligned in ful
 on those views the right pose was always first or second by descriptor, and it
 keeps recognition time flat in the number of cached poses.
 
-Nearest neighbours come from SciPy's ``cKDTree`` (one tree per cached pose, kept in
-memory; queried on every core).
+Exact nearest neighbours (ICP, the fractions) come from SciPy's ``cKDTree`` (one
+tree per cached pose, kept in memory; one thread: the queries are small, and
+threads cost more than they save on a busy machine).
 """
 
 from __future__ import annotations
@@ -39,7 +45,7 @@ import dataclasses
 import numpy as np
 from scipy.spatial import cKDTree
 
-from legs_jax.online.camera import Intrinsics, deproject
+from legs_jax.online.camera import Intrinsics
 from legs_jax.online.errors import InputError
 
 __all__ = [

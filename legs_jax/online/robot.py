@@ -230,7 +230,12 @@ class SimRobot:
         W, H = intr.width, intr.height
         lo, hi = self.world.bounds(self.pose)
         corners = np.array(
-            [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
+            [
+                [x, y, z]
+                for x in (lo[0], hi[0])
+                for y in (lo[1], hi[1])
+                for z in (lo[2], hi[2])
+            ]
         )
         cam = corners @ pose_to_cam[:3, :3].T + pose_to_cam[:3, 3]
         if np.any(cam[:, 2] <= 1e-6):
