@@ -94,6 +94,66 @@ def test_recognition_same_pose_new_pose_and_alignment(tmp_path, clamp):
         assert o3["new"] and o3["pose"] == 1
 
 
+def test_distance_grid_reads_the_capped_distance_to_the_cloud():
+    """The yaw search's grid: nearest-node and trilinear reads are within half a
+    lattice diagonal of the exact capped distance (both are 1-Lipschitz), and
+    points beyond the lattice read the cap."""
+    from scipy.spatial import cKDTree
+
+    from legs_jax.online import recognition as rec
+
+    rng = np.random.default_rng(0)
+    cloud = rng.uniform([-0.03, -0.02, 0.004], [0.03, 0.02, 0.04], (800, 3))
+    cloud = np.concatenate([cloud, [[0.3, 0.3, 0.005]]])  # one stray reading
+    tree = cKDTree(cloud)
+    grid = rec.DistanceGrid(tree, cloud)
+    # the stray reading does not stretch the lattice across the table
+    assert np.all(grid.shape * rec.GRID < 0.06 + 2 * rec._CAP + 3 * rec.GRID)
+    pts = rng.uniform([-0.05, -0.04, 0.0], [0.05, 0.04, 0.06], (5000, 3))
+    exact = np.minimum(tree.query(pts)[0], rec._CAP)
+    half_diag = np.sqrt(3) * rec.GRID / 2
+    for read in (grid.nearest(pts), grid(pts)):
+        assert np.all(np.abs(read - exact) <= half_diag + 1e-12)
+        assert np.mean(np.abs(read - exact) < 0.5e-3) > 0.5
+    far = np.array([[0.2, 0.0, 0.02], [0.0, -0.2, 0.02]])
+    assert np.all(grid(far) == rec._CAP) and np.all(grid.nearest(far) == rec._CAP)
+
+
+def test_voxel_down_is_the_mean_of_each_voxel_in_lexicographic_order():
+    from legs_jax.online.recognition import voxel_down
+
+    rng = np.random.default_rng(1)
+    p = rng.uniform(-0.01, 0.01, (3000, 3))
+    groups: dict = {}
+    for q in p:
+        groups.setdefault(tuple(np.floor(q / 0.002).astype(int)), []).append(q)
+    want = np.array([np.mean(groups[k], axis=0) for k in sorted(groups)])
+    np.testing.assert_allclose(voxel_down(p, 0.002), want, rtol=0, atol=1e-15)
+
+
+def test_render_casts_only_near_the_object_and_gives_the_full_image(clamp):
+    """Rays outside the object's box see the table: the image equals the one made
+    by casting every pixel's ray."""
+    rob = robot(clamp, 4)
+    for pose in range(3):
+        rob.place(pose)
+        state = rob.rng.bit_generator.state
+        fast = rob.render()
+        rob.rng.bit_generator.state = state
+        caster, _ = clamp.posed(rob.pose)
+        tf = np.linalg.inv(rob.placement) @ rob.camera_pose
+        dirs = INTR.rays().reshape(-1, 3) @ tf[:3, :3].T
+        hit = caster.cast_raw(np.broadcast_to(tf[:3, 3], dirs.shape), dirs)[0]
+        table = -tf[2, 3] / dirs[:, 2]
+        full = np.where(hit < table, hit.astype(np.float64), table).reshape(
+            INTR.height, INTR.width
+        )
+        full = full + rob.rng.normal(0.0, rob.noise, full.shape)
+        full[rob.rng.random(full.shape) < rob.dropout] = np.nan
+        np.testing.assert_array_equal(fast, full)
+        assert np.sum(fast < 0.69) > 500  # the object is in view
+
+
 def test_sampled_grasps_of_a_box_are_antipodal_and_mostly_succeed(box):
     rob = robot(box, 3)
     d = view(rob, 0)

@@ -130,7 +130,10 @@ def _programs(method: str, cfg: Config):
 
         return jax.tree.map(splice, ms, fresh), rec.at[:, s].set(rec0[:, s])
 
-    def select(ms, tables, hp, s, key):
+    def select(ms, tables, hp, s, method_key, t):
+        # the step's key is folded in here, inside the jit: eagerly (a vmap of
+        # fold_in traced at every call) it cost more than the method's select
+        key = keys_mod.step_keys(method_key, t)
         grasp, slot, _ = m.select(ms, ctx(tables, hp), cfg, s, key)
         return grasp, slot
 
@@ -270,9 +273,13 @@ class Loop:
 
     def select(self, s: int, t: int) -> tuple[int, int]:
         """(grasp id, method slot) to execute at step t in pose s."""
-        key = keys_mod.step_keys(self._method_key, t)
         g, slot = self._fn["select"](
-            self.state, self._tables, self.hp, jnp.full(1, s, jnp.int32), key
+            self.state,
+            self._tables,
+            self.hp,
+            np.full(1, s, np.int32),
+            self._method_key,
+            np.int32(t),
         )
         return int(g[0]), int(slot[0])
 
@@ -283,11 +290,11 @@ class Loop:
             self.rec,
             self._tables,
             self.hp,
-            jnp.full(1, s, jnp.int32),
-            jnp.full(1, grasp, jnp.int32),
-            jnp.full(1, slot, jnp.int32),
-            jnp.full(1, bool(success)),
-            jnp.int32(t),
+            np.full(1, s, np.int32),
+            np.full(1, grasp, np.int32),
+            np.full(1, slot, np.int32),
+            np.full(1, bool(success)),
+            np.int32(t),
         )
         self.forgotten = self.forgotten + lost
         return {"new": bool(new[0]), "removed": int(removed[0])}

@@ -10,6 +10,7 @@ axis is a yaw on the table.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
@@ -83,12 +84,20 @@ class Intrinsics:
         )
 
     def rays(self) -> np.ndarray:
-        """[H, W, 3] direction of each pixel's ray (z = 1), camera frame."""
-        u, v = np.meshgrid(np.arange(self.width), np.arange(self.height))
-        return np.stack(
-            [(u - self.cx) / self.fx, (v - self.cy) / self.fy, np.ones(u.shape)],
-            axis=-1,
-        )
+        """[H, W, 3] direction of each pixel's ray (z = 1), camera frame
+        (computed once per intrinsics; read-only)."""
+        return _rays(self)
+
+
+@functools.lru_cache(maxsize=8)
+def _rays(intr: Intrinsics) -> np.ndarray:
+    u, v = np.meshgrid(np.arange(intr.width), np.arange(intr.height))
+    out = np.stack(
+        [(u - intr.cx) / intr.fx, (v - intr.cy) / intr.fy, np.ones(u.shape)],
+        axis=-1,
+    )
+    out.flags.writeable = False
+    return out
 
 
 def default_camera_pose(height: float = DEFAULT_HEIGHT) -> np.ndarray:

@@ -132,6 +132,13 @@ class World:
         caster = RayCaster(v, self.faces)
         return caster, G.height_map(caster)
 
+    @functools.lru_cache(maxsize=64)  # noqa: B019 - one world per run
+    def bounds(self, s: int) -> tuple[np.ndarray, np.ndarray]:
+        """(lowest, highest) corner of the mesh's box in pose s (pose frame)."""
+        tf = self.transforms[s]
+        v = self.vertices @ tf[:3, :3].T + tf[:3, 3]
+        return v.min(0), v.max(0)
+
 
 def _find_mesh(problem, problem_path=None):
     """The mesh file a problem file of the user's own (``precompute --mesh``) was
@@ -201,16 +208,46 @@ class SimRobot:
         # into the pose frame: camera -> table -> pose
         cam_to_pose = np.linalg.inv(self.placement) @ self.camera_pose
         R, t = cam_to_pose[:3, :3], cam_to_pose[:3, 3]
-        dirs = self._rays @ R.T
-        origins = np.broadcast_to(t, dirs.shape)
-        hit, _ = caster.cast_raw(origins, dirs)
-        hit = hit.astype(np.float64)
-        table = -t[2] / dirs[:, 2]  # the plane z = 0 (the table)
+        # only the rays through the object's box can hit it: the others see the
+        # table (the same image as casting every ray)
+        cast = self._box_pixels(np.linalg.inv(cam_to_pose))
+        hit = np.full(len(self._rays), np.inf)
+        if len(cast):
+            dirs = self._rays[cast] @ R.T
+            hit[cast] = caster.cast_raw(np.broadcast_to(t, dirs.shape), dirs)[0]
+        table = -t[2] / (self._rays @ R[2])  # the plane z = 0 (the table)
         depth = np.where(np.isfinite(hit) & (hit < table), hit, table)
         depth = depth.reshape(intr.height, intr.width)
         depth = depth + self.rng.normal(0.0, self.noise, depth.shape)
         depth[self.rng.random(depth.shape) < self.dropout] = np.nan
         return depth
+
+    def _box_pixels(self, pose_to_cam: np.ndarray) -> np.ndarray:
+        """Flat indices of the pixels whose rays may hit the object: the image
+        rectangle around its bounding box's corners (a pixel wider), or every
+        pixel when a corner is not in front of the camera."""
+        intr = self.intrinsics
+        W, H = intr.width, intr.height
+        lo, hi = self.world.bounds(self.pose)
+        corners = np.array(
+            [
+                [x, y, z]
+                for x in (lo[0], hi[0])
+                for y in (lo[1], hi[1])
+                for z in (lo[2], hi[2])
+            ]
+        )
+        cam = corners @ pose_to_cam[:3, :3].T + pose_to_cam[:3, 3]
+        if np.any(cam[:, 2] <= 1e-6):
+            return np.arange(W * H)
+        uv = intr.project(cam)
+        u0, v0 = np.maximum(np.floor(uv.min(0)).astype(int) - 1, 0)
+        u1 = min(int(np.ceil(uv[:, 0].max())) + 1, W - 1)
+        v1 = min(int(np.ceil(uv[:, 1].max())) + 1, H - 1)
+        if u0 > u1 or v0 > v1:
+            return np.zeros(0, np.int64)
+        vv, uu = np.mgrid[v0 : v1 + 1, u0 : u1 + 1]
+        return (vv * W + uu).ravel()
 
     def to_pose_frame(self, center: np.ndarray, axis: np.ndarray):
         """A grasp in the table frame -> the object's pose frame."""
