@@ -100,14 +100,14 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from legs_jax.constants import DELTA_STOP, NUM_DIRICHLET_SAMPLES, Q_CLIP, TOP_FIXED
+from legs_jax.constants import DELTA_STOP, NUM_DIRICHLET_SAMPLES, Q_CLIP
 from legs_jax.errors import ConfigError
+from legs_jax.methods.base import Config
 from legs_jax.problem import Problem
 
 __all__ = [
     "DELTA_STOP",
     "NUM_DIRICHLET_SAMPLES",
-    "TOP_FIXED",
     "BetaMethod",
     "Borges",
     "Fixed",
@@ -657,7 +657,8 @@ def run_rollout(
     gap_curve = np.zeros(curve_steps.size)
     p_lower = np.zeros((2, check_steps.size))
     true_perf = np.zeros(check_steps.size)
-    width = int(hp.get("k", TOP_FIXED))  # slots of the active set
+    static = {n: hp[n] for n in spec.static}
+    width = spec.active_width(Config(P, problem.num_grasps, **static))  # slots
     active = np.full((check_steps.size, P, width), -1) if record_active_set else None
     poses = np.zeros(H, int)
     actions = np.full(H, -1)

@@ -41,6 +41,7 @@ __all__ = [
     "Method",
     "Range",
     "check_prior",
+    "every_n_steps",
     "Tables",
     "argmax_first",
     "argmin_id_of_max",
@@ -191,8 +192,13 @@ class Method:
       learn from the outcome [B] bool; rows with ``live`` False must not change.
       ``new`` [B] bool: the (pose, grasp) had never been attempted.
     - ``prune`` (or None) ``(state, ctx, cfg, s, live) -> (state, removed)``: called
-      after the update of every step t ≡ 0 (mod cfg.n) for the pose just grasped;
-      ``removed`` [B] i32 counts the grasps taken out.
+      after the update of a step where ``prune_due`` says so, for the pose just
+      grasped; rows with ``live`` False must not change; ``removed`` [B] i32
+      counts the grasps taken out.
+    - ``prune_due`` ``(state, ctx, cfg, s, t) -> [B]`` bool: the method's pruning
+      schedule, read after the update of step t (``state`` is the updated one);
+      the rows where it is False are passed to ``prune`` as not live. Needed with
+      ``prune`` (:func:`every_n_steps` is LEGS's).
     - ``recommend(state, ctx, cfg, s) -> [B]``: π_t(s) for the pose just updated
       (a visited pose), a grasp id.
     - ``recommend_updated`` (or None) ``(rows, ctx, cfg, s, slot, reward, live)
@@ -209,7 +215,8 @@ class Method:
     - ``candidates(state, ctx, cfg) -> [B, P, K]`` bool: the candidate set, dense
       (for tests and conformance checks; not used in the loop).
     - ``active_set`` (or None) ``(state, ctx, cfg) -> [B, P, k]`` grasp ids, -1 for
-      an empty slot.
+      an empty slot; ``active_width(cfg)`` is k, the number of slots a recorded
+      active set has (those of a method without one are all -1).
 
     Besides the functions a method declares its hyperparameters: ``hparams``, a
     NamedTuple class whose fields are their names with their defaults;
@@ -245,7 +252,9 @@ class Method:
     estimates: Callable[..., tuple[jax.Array, jax.Array]]
     candidates: Callable[..., jax.Array]
     prune: Callable[..., tuple[Any, jax.Array]] | None = None
+    prune_due: Callable[..., jax.Array] | None = None
     active_set: Callable[..., jax.Array] | None = None
+    active_width: Callable[[Config], int] = lambda cfg: TOP_FIXED
     recommend_updated: Callable[..., jax.Array] | None = None
     counts: Callable[..., tuple] | None = None
     learns: bool = True  # False for the constant rows (Dex-Net, K100 UB)
@@ -290,6 +299,12 @@ def _traced_type(hparams: type, static: tuple[str, ...]) -> type:
 
 
 # ----------------------------------------------------------------------- helpers
+
+
+def every_n_steps(state: Any, ctx: Ctx, cfg: Config, s: jax.Array, t) -> jax.Array:
+    """LEGS's pruning schedule: every step t ≡ 0 (mod n), n the method's static
+    hyperparameter ``n`` ([B] bool, the same for every row)."""
+    return jnp.broadcast_to(t % cfg.n == 0, s.shape)
 
 
 #: Index of the maximum along an axis, the lowest one on ties (as np.argmax):

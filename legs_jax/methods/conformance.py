@@ -49,10 +49,21 @@ def check_declaration(method: Any, where: str = "") -> None:
     for f in _FUNCTIONS:
         if not callable(getattr(method, f)):
             raise ConfigError(f"{at}: {f} is not callable")
-    for f in ("prune", "active_set", "recommend_updated", "reference", "check"):
+    for f in (
+        "prune",
+        "prune_due",
+        "active_set",
+        "recommend_updated",
+        "reference",
+        "check",
+    ):
         v = getattr(method, f)
         if v is not None and not callable(v):
             raise ConfigError(f"{at}: {f} must be callable or None")
+    if method.prune is not None and method.prune_due is None:
+        raise ConfigError(f"{at}: prune needs prune_due, its schedule")
+    if not callable(method.active_width):
+        raise ConfigError(f"{at}: active_width is not callable")
     hp = method.hparams
     fields = getattr(hp, "_fields", None)
     if not isinstance(hp, type) or fields is None:

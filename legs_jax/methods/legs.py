@@ -21,6 +21,7 @@ from legs_jax.methods.base import (
     UNIT_OPEN,
     Method,
     check_prior,
+    every_n_steps,
     prune_mask,
 )
 
@@ -61,7 +62,9 @@ METHOD = Method(
     **_slots.FUNCTIONS,
     init=lambda ctx, cfg: _slots.init(ctx, cfg, cfg.k, refill=True),
     prune=_slots.prune_refill,
+    prune_due=every_n_steps,
     active_set=_slots.active_set,
+    active_width=lambda cfg: cfg.k,
     hparams=LegsHParams,
     ranges=RANGES,
     static=("k", "n"),

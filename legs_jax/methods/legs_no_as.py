@@ -5,7 +5,13 @@ from typing import NamedTuple
 
 from legs_jax import reference as ref
 from legs_jax.methods import _dense
-from legs_jax.methods.base import COUNT, PRIOR_RANGES, UNIT_OPEN, Method
+from legs_jax.methods.base import (
+    COUNT,
+    PRIOR_RANGES,
+    UNIT_OPEN,
+    Method,
+    every_n_steps,
+)
 
 
 class LegsNoASHParams(NamedTuple):
@@ -23,6 +29,7 @@ METHOD = Method(
     **_dense.FUNCTIONS,
     init=lambda ctx, cfg: _dense.init(ctx, cfg, removable=True),
     prune=_dense.prune,
+    prune_due=every_n_steps,
     hparams=LegsNoASHParams,
     ranges={**PRIOR_RANGES, "delta": UNIT_OPEN, "gamma": UNIT_OPEN, "n": COUNT},
     static=("n",),
