@@ -6,13 +6,14 @@ the methods (:mod:`legs_jax.methods`) are small pure functions over their own
 state. Every step is written with an explicit batch axis B (one row per rollout)
 and gathers only the current pose's row of the method's state.
 
-Hyperparameters s, prior_offset, δ, γ, ε and η are traced, one value per rollout,
-so a grid of them is part of the batch; k, n, K, P, H and the recording intervals
-set shapes and are static (one compile per distinct value and method).
+A method's hyperparameters are traced, one value per rollout, so a grid of them
+is part of the batch, except those it declares static; those, K, P, H and the
+recording intervals set shapes (one compile per distinct value and method).
 
 Rules of one step t = 1..H (the reference implementation follows the same):
-select a grasp of the current pose s → reward r = [u_r < p(s, a)] → update →
-LEGS(-AS) pruning of pose s if t ≡ 0 (mod n) → recommendation of s refreshed →
+select a grasp of the current pose s → reward r = [u_r < p(s, a)] → the agent's
+step (:func:`agent_step`: update → the method's prune of pose s where its schedule
+says, LEGS(-AS)'s at t ≡ 0 (mod n) → recommendation of s refreshed) →
 transition (after a success a drop s' ~ λ, counted in c_{s'}; after a failure a
 topple s' ~ topple[s]). A pose with no valid grasp is a failed attempt that touches
 no grasp. The gap is recorded at step 0, every ``record_every`` steps and at H;
@@ -703,8 +704,8 @@ def _default_batch_size(method: Method, platform: str, cfg: Config) -> int:
     # devices, BENCHMARKS.md; least for the objects with the most poses, whose
     # rollout state then no longer fits in cache).
     if platform == "cpu":
-        return 64 if method.dense else 512
-    return 2048 if method.dense else 16384
+        return 64 if method.card.dense else 512
+    return 2048 if method.card.dense else 16384
 
 
 def _batch_rows(rows_per_device: int, largest: int, quantum: int) -> int:

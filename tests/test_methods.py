@@ -208,12 +208,12 @@ def test_registry_declarations():
         m = methods.get(name)
         assert m.name == name
         conformance.check_declaration(m)
-        assert m.label and m.short_label and m.style
+        assert m.card.label and m.card.short_label and m.card.style
     assert methods.get("legs").prune is not None
     assert methods.get("legs_no_as").prune is not None
     assert methods.get("borges_2000").prune is None
     assert methods.get("legs").static == ("k", "n")
-    assert [n for n in methods.names() if methods.get(n).oracle] == ["k100_ub"]
+    assert [n for n in methods.names() if methods.get(n).card.oracle] == ["k100_ub"]
     # the result columns: every hyperparameter, first declarer's default
     cols = methods.column_defaults()
     assert cols["delta"] == 0.05 and cols["k"] == 100 and cols["epsilon"] == 0.1

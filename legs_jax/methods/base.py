@@ -36,6 +36,7 @@ __all__ = [
     "UNIT",
     "UNIT_OPEN",
     "BetaPrior",
+    "Card",
     "Config",
     "Ctx",
     "Method",
@@ -45,6 +46,7 @@ __all__ = [
     "Tables",
     "argmax_first",
     "argmin_id_of_max",
+    "best_estimates",
     "gather_rows",
     "gather_at",
     "posterior_prior",
@@ -175,8 +177,42 @@ class Config:
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
+class Card:
+    """What a method is besides its algorithm: how tables, figures, the benchmark
+    and the planner treat it. Declared in the method's file, beside its functions.
+
+    ``label`` names it in tables and figures, ``short_label`` in narrow tables,
+    ``style`` its line in figures; ``oracle`` marks a row that reads the ground
+    truth (not a method, never a competitor, never run on a robot);
+    ``cost(cfg)`` is the number of candidate grasps a step touches (planning) and
+    ``dense`` says its per-step work and state are O(K) (smaller batches suit it).
+    ``reference`` (or None) ``(problem, trial, hp)`` builds its one-rollout NumPy
+    twin (:mod:`legs_jax.reference`). ``bench`` makes it a row of the benchmark's
+    table (``legs_jax.bench``, timed against its NumPy twin); ``bench_proxy`` names
+    a method of that table with the same per-step work, whose measured rate
+    stands in for this one's when the benchmark projects a sweep. ``prior_only``
+    marks a row whose gap the prior and the reservoirs alone decide, by its rule:
+    ``"greedy"`` (the grasp of highest q) or ``"top"`` (the best true grasp among
+    the top-k by q); :mod:`precompute.analysis` computes those gaps without
+    running it.
+    """
+
+    label: str = ""
+    short_label: str = ""
+    style: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    oracle: bool = False
+    cost: Callable[[Config], float] = lambda cfg: float(cfg.num_grasps)
+    dense: bool = False
+    reference: Callable[..., Any] | None = None
+    bench: bool = False
+    bench_proxy: str = ""
+    prior_only: str = ""
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
 class Method:
-    """One exploration method: its pure functions and everything else about it.
+    """One exploration method: the algorithm (pure functions and hyperparameters)
+    and its :class:`Card`.
 
     Every function takes the method state (a pytree with leading axis B), the
     :class:`Ctx` and the static :class:`Config`; ``s`` is the current pose [B].
@@ -226,20 +262,10 @@ class Method:
     ``check`` (or None) ``(hp, num_grasps)``, which refuses combinations
     (``hp`` maps every name to an array over the grid points; ``num_grasps`` K is
     None where the problems are not known yet) with a
-    :class:`legs_jax.errors.ConfigError`. ``label`` names it in tables and
-    figures, ``short_label`` in narrow tables, ``style`` its line in figures;
-    ``oracle`` marks a row that reads the ground truth (not a method, never a
-    competitor); ``cost(cfg)`` is the number of candidate grasps a step touches
-    (planning) and ``dense`` says its per-step work and state are O(K) (smaller
-    batches suit it). ``reference`` (or None) ``(problem, trial, hp)`` builds its
-    one-rollout NumPy twin (:mod:`legs_jax.reference`). ``bench`` makes it a row of
-    the benchmark's table (``legs_jax.bench``, timed against its NumPy twin);
-    ``bench_proxy`` names a method of that table with the same per-step work, whose
-    measured rate stands in for this one's when the benchmark projects a sweep.
-    ``prior_only`` marks a row whose gap the prior and the reservoirs alone decide,
-    by its rule: ``"greedy"`` (the grasp of highest q) or ``"top"`` (the best true
-    grasp among the top-k by q); :mod:`precompute.analysis` computes those gaps
-    without running it.
+    :class:`legs_jax.errors.ConfigError`. ``learns`` is False for a constant row
+    (its recommendation never changes). Everything about the method that is not
+    the algorithm (how it is named and drawn, benchmarked and planned) is its
+    :class:`Card`.
     """
 
     name: str
@@ -264,16 +290,7 @@ class Method:
     )
     static: tuple[str, ...] = ()
     check: Callable[[Mapping[str, np.ndarray], int | None], None] | None = check_prior
-    label: str = ""
-    short_label: str = ""
-    style: Mapping[str, Any] = dataclasses.field(default_factory=dict)
-    oracle: bool = False
-    cost: Callable[[Config], float] = lambda cfg: float(cfg.num_grasps)
-    dense: bool = False
-    reference: Callable[..., Any] | None = None
-    bench: bool = False
-    bench_proxy: str = ""
-    prior_only: str = ""
+    card: Card = dataclasses.field(default_factory=lambda: Card())
 
     def defaults(self) -> dict[str, float | int]:
         """Every hyperparameter with its default."""
@@ -310,6 +327,19 @@ def every_n_steps(state: Any, ctx: Ctx, cfg: Config, s: jax.Array, t) -> jax.Arr
 #: Index of the maximum along an axis, the lowest one on ties (as np.argmax):
 #: :func:`legs_jax.sampling.argmax_first`, faster than ``jnp.argmax`` on CPU.
 argmax_first = sampling.argmax_first
+
+
+def best_estimates(
+    value: jax.Array, candidate: jax.Array, attempted: jax.Array
+) -> tuple[jax.Array, jax.Array]:
+    """A method's ``estimates``: the largest ``value`` [B, P, N] over the
+    candidates of each pose, and over the attempted candidates only (0 where
+    there are none); ([B, P], [B, P])."""
+    out = []
+    for m in (candidate, candidate & attempted):
+        best = jnp.max(jnp.where(m, value, -jnp.inf), axis=-1)
+        out.append(jnp.where(jnp.any(m, axis=-1), best, 0.0))
+    return out[0], out[1]
 
 
 def argmin_id_of_max(

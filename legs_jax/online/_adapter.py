@@ -42,7 +42,7 @@ __all__ = ["ORACLES", "Loop", "default_method", "method_names", "check_hparams"]
 
 # Methods that read the ground truth p (declared ``oracle``): they cannot run on a
 # robot.
-ORACLES = tuple(m for m in methods_mod.names() if methods_mod.get(m).oracle)
+ORACLES = tuple(m for m in methods_mod.names() if methods_mod.get(m).card.oracle)
 
 
 def default_method() -> str:
@@ -52,12 +52,12 @@ def default_method() -> str:
 
 def method_names() -> tuple[str, ...]:
     """Registered methods that can run online (every one but the oracles)."""
-    return tuple(m for m in methods_mod.names() if not methods_mod.get(m).oracle)
+    return tuple(m for m in methods_mod.names() if not methods_mod.get(m).card.oracle)
 
 
 def _method(method: str) -> Method:
     """The registered method ``method``, refusing oracles and unknown names."""
-    if method in methods_mod.names() and methods_mod.get(method).oracle:
+    if method in methods_mod.names() and methods_mod.get(method).card.oracle:
         raise ConfigError(
             f"{method} reads the ground-truth success probabilities and cannot run "
             f"on a robot; choose one of {', '.join(method_names())}"

@@ -233,7 +233,7 @@ def _rollout_work(arm: Arm, P: int, K: int, horizon: int, check_every: int) -> f
     ``cost``; about one exact Beta draw each) plus a fixed cost a step, and the
     Dirichlet checks."""
     m, cfg = _static_config(arm, P, K)
-    steps = horizon * (m.cost(cfg) + 32.0)
+    steps = horizon * (m.card.cost(cfg) + 32.0)
     n_checks = horizon // check_every if check_every else 0
     return steps + n_checks * DIRICHLET_SAMPLES * (P + 1)
 
