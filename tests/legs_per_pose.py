@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 
 from legs_jax.methods import _slots, legs
-from legs_jax.methods.base import gather_at
+from legs_jax.methods.base import Card, gather_at
 
 
 class State(NamedTuple):
@@ -53,6 +53,11 @@ METHOD = dataclasses.replace(
     update=update,
     prune=prune,
     prune_due=prune_due,
+    card=Card(
+        label="LEGS (pruned by the pose's attempts)",
+        short_label="LEGS-pose",
+        cost=legs.METHOD.card.cost,
+    ),
     **{
         name: _inner(getattr(_slots, name))
         for name in (
