@@ -19,6 +19,7 @@ import numpy as np
 import pandas as pd
 
 import experiments
+from legs_jax.results import HPARAM_COLUMNS
 
 __all__ = [
     "ARM_LABELS",
@@ -87,7 +88,6 @@ METHODS = _table_order()
 # keep the paper's definition.
 COMPETITORS = _competitors()
 WIN_TOLERANCE = 0.005
-HPARAM_COLUMNS = ("s", "prior_offset", "delta", "gamma", "k", "n", "epsilon", "eta")
 
 ARM_LABELS = _arm_labels()
 SET_LABELS = {"dexnet_adv": "Dex-Net Adversarial", "egad_eval": "EGAD! evaluation"}

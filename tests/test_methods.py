@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from legs_jax import engine, keys, methods
+from legs_jax import engine, keys, methods, results
 from legs_jax import reference as ref
 from legs_jax.errors import ConfigError
 from legs_jax.methods import _slots, conformance
@@ -221,6 +221,18 @@ def test_registry_declarations():
         "epsilon",
         "eta",
     }
+    # the result tables carry those columns, typed as the methods declare them
+    assert set(results.HPARAM_COLUMNS) == set(cols)
+    assert results.integer_hparams() == {"k", "n"}
+    # LEGS owns its pruning schedule: every n-th step, whatever the pose
+    legs = methods.get("legs")
+    cfg = Config(num_poses=2, num_grasps=8, k=4, n=3)
+    due = [
+        bool(legs.prune_due(None, None, cfg, jnp.zeros(2, jnp.int32), t)[0])
+        for t in range(1, 8)
+    ]
+    assert due == [False, False, True, False, False, True, False]
+    assert legs.active_width(cfg) == 4 and methods.get("tql").active_width(cfg) == 100
 
 
 def test_parse_grid_uses_the_method_declaration():
