@@ -70,8 +70,9 @@ def describe(fn: Callable, name: str | None, *parts: Any) -> Callable:
 def method_fingerprint(method: Any) -> str | None:
     """The name of a registered method whose functions all live in ``legs_jax``
     (None for any other: it is not kept on disk)."""
-    for f in dataclasses.fields(method):
-        v = getattr(method, f.name)
+    values = [getattr(method, f.name) for f in dataclasses.fields(method)]
+    values += [getattr(method.card, f.name) for f in dataclasses.fields(method.card)]
+    for v in values:
         while isinstance(v, functools.partial):
             v = v.func
         if callable(v) and not str(getattr(v, "__module__", "")).startswith(

@@ -19,6 +19,7 @@ import numpy as np
 import pandas as pd
 
 import experiments
+from legs_jax.results import HPARAM_COLUMNS
 
 __all__ = [
     "ARM_LABELS",
@@ -67,14 +68,14 @@ def _competitors() -> tuple[str, ...]:
     return tuple(
         m
         for m in _MAIN.TABLE_ORDER
-        if m in declared and m in methods.names() and not methods.get(m).oracle
+        if m in declared and m in methods.names() and not methods.get(m).card.oracle
     )
 
 
 def _arm_labels() -> dict[tuple[str, str], str]:
     from legs_jax import methods
 
-    out = {(m, ""): methods.get(m).label or m for m in methods.names()}
+    out = {(m, ""): methods.get(m).card.label or m for m in methods.names()}
     out.update({arm: v["label"] for arm, v in _MAIN.VARIANTS.items()})
     return out
 
@@ -87,7 +88,6 @@ METHODS = _table_order()
 # keep the paper's definition.
 COMPETITORS = _competitors()
 WIN_TOLERANCE = 0.005
-HPARAM_COLUMNS = ("s", "prior_offset", "delta", "gamma", "k", "n", "epsilon", "eta")
 
 ARM_LABELS = _arm_labels()
 SET_LABELS = {"dexnet_adv": "Dex-Net Adversarial", "egad_eval": "EGAD! evaluation"}
@@ -133,7 +133,7 @@ def oracle_methods() -> tuple[str, ...]:
     """The registered methods that are oracle rows (never compared or bolded)."""
     from legs_jax import methods
 
-    return tuple(m for m in methods.names() if methods.get(m).oracle)
+    return tuple(m for m in methods.names() if methods.get(m).card.oracle)
 
 
 def arm_declaration(method: str, variant: str = "") -> dict:
@@ -147,7 +147,9 @@ def arm_declaration(method: str, variant: str = "") -> dict:
     if method not in methods.names():
         return {}
     m = methods.get(method)
-    return dict(label=m.label, short_label=m.short_label, style=dict(m.style))
+    return dict(
+        label=m.card.label, short_label=m.card.short_label, style=dict(m.card.style)
+    )
 
 
 def arm_label(method: str, variant: str = "") -> str:

@@ -65,7 +65,7 @@ def table_methods() -> tuple[str, ...]:
     ``bench_proxy``, a method with the same per-step work."""
     from legs_jax import methods
 
-    return tuple(m for m in methods.names() if methods.get(m).bench)
+    return tuple(m for m in methods.names() if methods.get(m).card.bench)
 
 
 def proxy() -> dict[str, str]:
@@ -74,8 +74,8 @@ def proxy() -> dict[str, str]:
 
     out = {}
     for m in methods.names():
-        if methods.get(m).bench_proxy:
-            out[m] = methods.get(m).bench_proxy
+        if methods.get(m).card.bench_proxy:
+            out[m] = methods.get(m).card.bench_proxy
     return out
 
 
@@ -376,7 +376,7 @@ def bench_jax_engine(method: str, cfg: Settings, problem) -> dict[str, float]:
     batch = stack([problem])
     from legs_jax import methods
 
-    dense = methods.get(method).dense  # per-step work O(K): fewer rollouts
+    dense = methods.get(method).card.dense  # per-step work O(K): fewer rollouts
     total = cfg.rollouts_dense if dense else cfg.rollouts_sparse
     per_trial = max(1, total // cfg.trials)
     steps = cfg.trials * per_trial * cfg.horizon

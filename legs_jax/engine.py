@@ -6,13 +6,14 @@ the methods (:mod:`legs_jax.methods`) are small pure functions over their own
 state. Every step is written with an explicit batch axis B (one row per rollout)
 and gathers only the current pose's row of the method's state.
 
-Hyperparameters s, prior_offset, δ, γ, ε and η are traced, one value per rollout,
-so a grid of them is part of the batch; k, n, K, P, H and the recording intervals
-set shapes and are static (one compile per distinct value and method).
+A method's hyperparameters are traced, one value per rollout, so a grid of them
+is part of the batch, except those it declares static; those, K, P, H and the
+recording intervals set shapes (one compile per distinct value and method).
 
 Rules of one step t = 1..H (the reference implementation follows the same):
-select a grasp of the current pose s → reward r = [u_r < p(s, a)] → update →
-LEGS(-AS) pruning of pose s if t ≡ 0 (mod n) → recommendation of s refreshed →
+select a grasp of the current pose s → reward r = [u_r < p(s, a)] → the agent's
+step (:func:`agent_step`: update → the method's prune of pose s where its schedule
+says, LEGS(-AS)'s at t ≡ 0 (mod n) → recommendation of s refreshed) →
 transition (after a success a drop s' ~ λ, counted in c_{s'}; after a failure a
 topple s' ~ topple[s]). A pose with no valid grasp is a failed attempt that touches
 no grasp. The gap is recorded at step 0, every ``record_every`` steps and at H;
@@ -41,20 +42,23 @@ from legs_jax import keys as keys_mod
 from legs_jax import methods as methods_mod
 from legs_jax.constants import DELTA_STOP, NUM_DIRICHLET_SAMPLES
 from legs_jax.errors import ConfigError
-from legs_jax.methods.base import TOP_FIXED, Config, Ctx, Method, Tables
+from legs_jax.methods.base import Config, Ctx, Method, Tables
 from legs_jax.problem import ProblemBatch
 
 __all__ = [
     "DELTA_STOP",
     "NUM_DIRICHLET_SAMPLES",
     "EnvState",
+    "AgentStep",
     "RunResult",
+    "agent_step",
     "compile_seconds",
     "compiled",
     "dirichlet_checks",
     "dirichlet_quantiles",
     "env_reset",
     "env_step",
+    "forgets",
     "make_tables",
     "run",
     "simulate",
@@ -348,6 +352,85 @@ def dirichlet_checks(
     return out
 
 
+class AgentStep(NamedTuple):
+    """What :func:`agent_step` returns."""
+
+    state: Any  # the method's state after the step
+    rec: jax.Array  # [B, P] i32 π_t, the grasped pose's entry refreshed
+    new: jax.Array  # [B] bool the (pose, grasp) had never been attempted
+    removed: jax.Array  # [B] i32 grasps the prune took out
+    lost: jax.Array  # [B, P, CELLS] f32 those grasps per (S, F) cell (no cells
+    # unless :func:`forgets`)
+
+
+def forgets(method: Method) -> bool:
+    """Whether our bound keeps count of the grasps a prune of ``method`` forgets
+    (it has per-grasp counts and prunes)."""
+    return method.counts is not None and method.prune is not None
+
+
+def agent_step(
+    method: Method,
+    state: Any,
+    rec: jax.Array,
+    ctx: Ctx,
+    cfg: Config,
+    s: jax.Array,
+    grasp: jax.Array,
+    slot: jax.Array,
+    rows: Any,
+    reward: jax.Array,
+    live: jax.Array,
+    t: jax.Array,
+) -> AgentStep:
+    """The agent's half of step t after the world answered (pure): the method's
+    update → its prune of pose s where its ``prune_due`` says so → the
+    recommendation of pose s refreshed. One step of :func:`simulate` and one
+    ``tell`` of the online session (:mod:`legs_jax.online`) are this function.
+
+    Args:
+      state, rec: the method's state and π_{t-1} [B, P].
+      s, grasp, slot, rows: the pose [B] and what ``method.select`` returned
+        (``rows`` None: the recommendation reads the updated state).
+      reward, live: [B] bool outcome, pose has a valid grasp (reward implies live).
+      t: i32 scalar, the step (1-based).
+    """
+    m = method
+    B, P = rec.shape
+    removed = jnp.zeros(B, jnp.int32)
+    lost = jnp.zeros((B, P, stopping.CELLS if forgets(m) else 0), jnp.float32)
+    state, new = m.update(state, ctx, cfg, s, grasp, slot, reward, live)
+    due = None
+    if m.prune is not None:
+        due = m.prune_due(state, ctx, cfg, s, t)
+
+        def prune(st):
+            st2, n = m.prune(st, ctx, cfg, s, live & due)
+            if not forgets(m):
+                return st2, n, lost
+            # our bound fits every grasp attempted so far: keep those it forgets
+            gone = stopping.forgotten_cells(
+                m.counts(st, ctx, cfg), m.counts(st2, ctx, cfg)
+            )
+            return st2, n, gone
+
+        state, removed, lost = jax.lax.cond(
+            jnp.any(due), prune, lambda st: (st, removed, lost), state
+        )
+    if m.learns:
+        if m.recommend_updated is None or rows is None:
+            rec_s = m.recommend(state, ctx, cfg, s)
+        else:
+            rec_s = m.recommend_updated(rows, ctx, cfg, s, slot, reward, live)
+            if due is not None:  # after a prune, read the pruned state
+                rec_s = jax.lax.cond(
+                    jnp.any(due), lambda: m.recommend(state, ctx, cfg, s), lambda: rec_s
+                )
+        bi = jnp.arange(B)
+        rec = rec.at[bi, s].set(jnp.where(live, rec_s, rec[bi, s]))
+    return AgentStep(state, rec, new, removed, lost)
+
+
 def simulate(
     tables: Tables,
     ot: jax.Array,
@@ -401,16 +484,7 @@ def simulate(
     bi = jnp.arange(B)
 
     ms = m.init(ctx, cfg)
-    # Our bound fits every grasp attempted so far: keep those a prune forgets.
-    track = m.counts is not None and m.prune is not None
-
-    def prune(st, s, live):
-        st2, removed = m.prune(st, ctx, cfg, s, live)
-        if not track:
-            return st2, removed, jnp.zeros((B, P, 0), jnp.float32)
-        lost = stopping.forgotten_cells(m.counts(st, ctx, cfg), m.counts(st2, ctx, cfg))
-        return st2, removed, lost
-
+    track = forgets(m)
     s0 = env_reset(keys_mod.step_keys(env_k, 0), tables, ot).pose
     zeros_bp = jnp.zeros((B, P), jnp.int32)
     loop = _Loop(
@@ -439,48 +513,21 @@ def simulate(
         if trajectory:
             inside = m.candidates(c.mstate, ctx, cfg)[bi, s, grasp]
             traj = (s, jnp.where(live, grasp, -1), reward, live, inside | ~live)
-        ms, new = m.update(c.mstate, ctx, cfg, s, grasp, slot, reward, live)
-        removed = jnp.zeros(B, jnp.int32)
-        forgotten = c.forgotten
-        if m.prune is not None:
-            ms, removed, lost = jax.lax.cond(
-                t % cfg.n == 0,
-                prune,
-                lambda st, s, live: (
-                    st,
-                    jnp.zeros(B, jnp.int32),
-                    jnp.zeros(forgotten.shape, jnp.float32),
-                ),
-                ms,
-                s,
-                live,
-            )
-            forgotten = forgotten + lost
-        rec = c.rec
-        if m.learns:
-            if m.recommend_updated is None or rows is None:
-                rec_s = m.recommend(ms, ctx, cfg, s)
-            else:
-                rec_s = m.recommend_updated(rows, ctx, cfg, s, slot, reward, live)
-                if m.prune is not None:  # after a prune, read the pruned state
-                    rec_s = jax.lax.cond(
-                        t % cfg.n == 0,
-                        lambda: m.recommend(ms, ctx, cfg, s),
-                        lambda: rec_s,
-                    )
-            rec = rec.at[bi, s].set(jnp.where(live, rec_s, rec[bi, s]))
+        a = agent_step(
+            m, c.mstate, c.rec, ctx, cfg, s, grasp, slot, rows, reward, live, t
+        )
         s_next = env.pose
         c = _Loop(
             s=s_next,
-            rec=rec,
+            rec=a.rec,
             drops=c.drops.at[bi, s_next].add(reward.astype(jnp.int32)),
             observed=c.observed.at[bi, s_next].set(True),
             visited=c.visited.at[bi, s].set(c.visited[bi, s] | live),
-            forgotten=forgotten,
+            forgotten=c.forgotten + a.lost,
             successes=c.successes + reward,
-            distinct=c.distinct + new,
-            replacements=c.replacements + removed,
-            mstate=ms,
+            distinct=c.distinct + a.new,
+            replacements=c.replacements + a.removed,
+            mstate=a.state,
         )
         return c, traj
 
@@ -522,7 +569,7 @@ def simulate(
         out["check_eb_post"] = _eb_post(c)
         if record_active_set:
             if m.active_set is None:
-                act = jnp.full((B, P, _active_width(dict(cfg.static))), -1, jnp.int32)
+                act = jnp.full((B, P, m.active_width(cfg)), -1, jnp.int32)
             else:
                 act = m.active_set(c.mstate, ctx, cfg)
                 act = jnp.where(c.visited[..., None], act, -1).astype(jnp.int32)
@@ -629,12 +676,6 @@ def _is_int(x: Any) -> bool:
     return isinstance(x, numbers.Integral) and not isinstance(x, bool)
 
 
-def _active_width(static: Mapping[str, Any]) -> int:
-    """Slots of a recorded active set: k among a method's static hyperparameters,
-    or the fixed top size for a method without k."""
-    return int(static.get("k", TOP_FIXED))
-
-
 def table_rows(pairs: int) -> int:
     """Rows of the tables for ``pairs`` (object, trial) pairs: the next power of
     two (fewer distinct shapes to compile)."""
@@ -663,8 +704,8 @@ def _default_batch_size(method: Method, platform: str, cfg: Config) -> int:
     # devices, BENCHMARKS.md; least for the objects with the most poses, whose
     # rollout state then no longer fits in cache).
     if platform == "cpu":
-        return 64 if method.dense else 512
-    return 2048 if method.dense else 16384
+        return 64 if method.card.dense else 512
+    return 2048 if method.card.dense else 16384
 
 
 def _batch_rows(rows_per_device: int, largest: int, quantum: int) -> int:
@@ -888,8 +929,20 @@ def run(
         raise ConfigError("devices is empty")
     if batch_size is not None:
         batch_size = _check_int("batch_size", batch_size, 1)
-    if record_active_set and "k" in hp and len(set(hp["k"].tolist())) > 1:
-        raise ConfigError("record_active_set needs a single k, not a grid over k")
+    width = 0  # active-set slots (the method's, the same at every grid point)
+    if record_active_set:
+        widths = sorted(
+            {
+                int(m.active_width(Config(P, K, **{n: hp[n][g] for n in m.static})))
+                for g in range(G)
+            }
+        )
+        if len(widths) > 1:
+            raise ConfigError(
+                f"record_active_set needs a single active-set width, not a grid "
+                f"over it ({', '.join(map(str, widths))} slots)"
+            )
+        width = widths[0]
 
     # ---------------------------------------------------------------- layout
     T = len(trials)
@@ -993,7 +1046,6 @@ def run(
         bar.close()
 
     shape = (G, O, T, R)
-    width = _active_width({n: v[0] for n, v in hp.items()})  # active-set slots
 
     def get(name, dtype=None, extra=()):
         if name not in results:

@@ -81,7 +81,7 @@ Dirichlet stopping check (SPEC §5).
 
 Methods.
   Each method (:mod:`legs_jax.methods`) names its NumPy twin in its declaration
-  (``Method.reference``, one of the classes below or the user's own); this
+  (``Method.card.reference``, one of the classes below or the user's own); this
   module's loop, environment and checks are shared by all of them.
 
 Validation.
@@ -100,14 +100,14 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from legs_jax.constants import DELTA_STOP, NUM_DIRICHLET_SAMPLES, Q_CLIP, TOP_FIXED
+from legs_jax.constants import DELTA_STOP, NUM_DIRICHLET_SAMPLES, Q_CLIP
 from legs_jax.errors import ConfigError
+from legs_jax.methods.base import Config
 from legs_jax.problem import Problem
 
 __all__ = [
     "DELTA_STOP",
     "NUM_DIRICHLET_SAMPLES",
-    "TOP_FIXED",
     "BetaMethod",
     "Borges",
     "Fixed",
@@ -262,7 +262,7 @@ def constant_policy(problem: Problem, method: Any, trial: int) -> np.ndarray:
     from legs_jax import methods
 
     m = methods.resolve(method)
-    twin = m.reference(problem, trial, m.defaults()) if m.reference else None
+    twin = m.card.reference(problem, trial, m.defaults()) if m.card.reference else None
     if m.learns or not isinstance(twin, Fixed):
         raise ConfigError(f"{m.name} is not a constant row")
     return twin.choice.copy()
@@ -642,7 +642,7 @@ def run_rollout(
     u_move = env_rng.random(H)
 
     env = _Environment(problem)
-    m = spec.reference(problem, trial, hp)
+    m = spec.card.reference(problem, trial, hp)
     lam, p, _, valid = _trial_arrays(problem, trial)
     has_grasp = valid.any(axis=1)  # [P]
     total_star = float(np.sum(lam * np.where(valid, p, 0.0).max(axis=1)))
@@ -657,7 +657,8 @@ def run_rollout(
     gap_curve = np.zeros(curve_steps.size)
     p_lower = np.zeros((2, check_steps.size))
     true_perf = np.zeros(check_steps.size)
-    width = int(hp.get("k", TOP_FIXED))  # slots of the active set
+    static = {n: hp[n] for n in spec.static}
+    width = spec.active_width(Config(P, problem.num_grasps, **static))  # slots
     active = np.full((check_steps.size, P, width), -1) if record_active_set else None
     poses = np.zeros(H, int)
     actions = np.full(H, -1)
@@ -677,7 +678,7 @@ def run_rollout(
             a = m.select(s, method_rng)
             r = bool(u_reward[t - 1] < p[s, a])
             m.update(s, a, r)
-            m.after_step(t, s)  # LEGS(-AS): prune pose s if t % n == 0
+            m.after_step(t, s)  # the twin's own pruning (LEGS(-AS): t % n == 0)
         else:  # no valid grasp: a failed attempt that touches no grasp
             a, r = -1, False
         poses[t - 1], actions[t - 1], rewards[t - 1] = s, a, r
@@ -734,7 +735,7 @@ def _method(method: Any):
     from legs_jax import methods
 
     m = methods.resolve(method)
-    if m.reference is None:
+    if m.card.reference is None:
         raise ConfigError(f"method {m.name} has no NumPy reference")
     return m
 

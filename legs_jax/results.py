@@ -45,6 +45,7 @@ C2 checks, P poses, k active-set slots.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -64,6 +65,7 @@ from legs_jax._files import atomic_write
 __all__ = [
     "CHUNK_META",
     "HPARAM_COLUMNS",
+    "integer_hparams",
     "ChunkContext",
     "atomic_write_json",
     "atomic_write_parquet",
@@ -77,9 +79,26 @@ __all__ = [
     "write_chunk",
 ]
 
-# Hyperparameter columns, in this order, on every table that carries them.
+# Hyperparameter columns, in this order, on every table that carries them: those
+# of this package's methods (legs_jax.methods.column_defaults), LEGS's first.
 HPARAM_COLUMNS = ("s", "prior_offset", "delta", "gamma", "k", "n", "epsilon", "eta")
-_INT_HPARAMS = ("k", "n")
+
+
+@functools.cache
+def integer_hparams() -> frozenset[str]:
+    """The hyperparameters a method of this package declares integer (their
+    columns are int64, the others float64)."""
+    from legs_jax import methods
+
+    return frozenset(
+        name
+        for m in methods.names()
+        if methods.builtin(m)
+        for name, rng in methods.get(m).ranges.items()
+        if rng.integer
+    )
+
+
 CHUNK_META = "chunk.json"
 # Tables a chunk folder may hold; "runs" is always there.
 _CHUNK_TABLES = ("runs", "checks", "active_set")
@@ -217,7 +236,7 @@ def _hparam_columns(ctx: ChunkContext, g: np.ndarray) -> dict[str, np.ndarray]:
     extra = sorted(set(ctx.grid[0]) - set(HPARAM_COLUMNS))
     cols = {}
     for c in (*HPARAM_COLUMNS, *extra):
-        dtype = np.int64 if c in _INT_HPARAMS else np.float64
+        dtype = np.int64 if c in integer_hparams() else np.float64
         vals = np.array([gp[c] for gp in ctx.grid], dtype=dtype)
         cols[c] = vals[g]
     return cols
@@ -616,5 +635,5 @@ def _aggregate_curves(runs: pd.DataFrame, steps: np.ndarray) -> pd.DataFrame:
         frames.append(frame)
     out = pd.concat(frames, ignore_index=True)
     for c in HPARAM_COLUMNS:
-        out[c] = out[c].astype(np.int64 if c in _INT_HPARAMS else np.float64)
+        out[c] = out[c].astype(np.int64 if c in integer_hparams() else np.float64)
     return out[columns]

@@ -23,7 +23,7 @@ def prior_only_rows() -> dict[str, str]:
     method -> its rule (``"greedy"`` or ``"top"``), in registry order."""
     from legs_jax import methods
 
-    rows = {m: methods.get(m).prior_only for m in methods.names()}
+    rows = {m: methods.get(m).card.prior_only for m in methods.names()}
     return {m: rule for m, rule in rows.items() if rule}
 
 

@@ -91,7 +91,7 @@ def test_counts_attempts_per_pose_and_prefers_the_uncertain(name):
     np.testing.assert_array_equal(st2.count[:, 1:], 0)
     # the twin: two arms, one known well (mean a little above 1/2), one not at all
     pb = hand_problem([1.0], [[1.0]], [[0.5, 0.5]], [[0.5, 0.5]])
-    twin = m.reference(pb, 0, m.defaults())
+    twin = m.card.reference(pb, 0, m.defaults())
     twin.alpha[0, 0] += 51.0
     twin.beta[0, 0] += 50.0
     twin.count[0] = 100  # level 1 - 1/102: the uncertain arm's index is higher
@@ -143,7 +143,9 @@ def test_few_quantiles_choose_as_the_dense_computation(monkeypatch, dense_from):
     few = jax.jit(ucb.choose_few)
     dense = jax.jit(lambda lv, a, b, m: ucb.choose_dense(lv, a, b, m, ids))
     pb = hand_problem([1.0], [[1.0]], np.full((1, k), 0.5), np.full((1, k), 0.5))
-    twin = methods.get("bayes_ucb_2000").reference(pb, 0, dict(s=1.0, prior_offset=1.0))
+    twin = methods.get("bayes_ucb_2000").card.reference(
+        pb, 0, dict(s=1.0, prior_offset=1.0)
+    )
     compared = ties = 0
     for frac in (0.0, 0.05, 0.4, 1.0):
         level, a, b, mask, att = _ucb_rows(rng, rows, k, frac, grid=20)

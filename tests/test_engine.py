@@ -418,7 +418,11 @@ _SMALL = stack([make_problem(0, num_poses=2, num_grasps=120, num_trials=2)])
         ("legs", dict(hparams=dict(delta="a")), "must be a number"),
         ("legs", dict(hparams=dict(rho=1)), "unknown hyperparameter"),
         ("legs", dict(hparams=dict(s=[1, 2], delta=[0.1, 0.2, 0.3])), "equal lengths"),
-        ("legs", dict(hparams=dict(k=[10, 20]), record_active_set=True), "single k"),
+        (
+            "legs",
+            dict(hparams=dict(k=[10, 20]), record_active_set=True),
+            "single active-set width",
+        ),
         ("legs", dict(horizon=0), "horizon must be an integer >= 1"),
         ("legs", dict(num_rollouts=0), "num_rollouts must be"),
         ("legs", dict(record_every=0), "record_every must be"),

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from legs_jax import engine, keys, methods
+from legs_jax import engine, keys, methods, results
 from legs_jax import reference as ref
 from legs_jax.errors import ConfigError
 from legs_jax.methods import _slots, conformance
@@ -208,12 +208,12 @@ def test_registry_declarations():
         m = methods.get(name)
         assert m.name == name
         conformance.check_declaration(m)
-        assert m.label and m.short_label and m.style
+        assert m.card.label and m.card.short_label and m.card.style
     assert methods.get("legs").prune is not None
     assert methods.get("legs_no_as").prune is not None
     assert methods.get("borges_2000").prune is None
     assert methods.get("legs").static == ("k", "n")
-    assert [n for n in methods.names() if methods.get(n).oracle] == ["k100_ub"]
+    assert [n for n in methods.names() if methods.get(n).card.oracle] == ["k100_ub"]
     # the result columns: every hyperparameter, first declarer's default
     cols = methods.column_defaults()
     assert cols["delta"] == 0.05 and cols["k"] == 100 and cols["epsilon"] == 0.1
@@ -221,6 +221,18 @@ def test_registry_declarations():
         "epsilon",
         "eta",
     }
+    # the result tables carry those columns, typed as the methods declare them
+    assert set(results.HPARAM_COLUMNS) == set(cols)
+    assert results.integer_hparams() == {"k", "n"}
+    # LEGS owns its pruning schedule: every n-th step, whatever the pose
+    legs = methods.get("legs")
+    cfg = Config(num_poses=2, num_grasps=8, k=4, n=3)
+    due = [
+        bool(legs.prune_due(None, None, cfg, jnp.zeros(2, jnp.int32), t)[0])
+        for t in range(1, 8)
+    ]
+    assert due == [False, False, True, False, False, True, False]
+    assert legs.active_width(cfg) == 4 and methods.get("tql").active_width(cfg) == 100
 
 
 def test_parse_grid_uses_the_method_declaration():

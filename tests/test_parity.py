@@ -84,7 +84,9 @@ def _welch(a, b, what):
 
 # Every registered method that learns and has a NumPy twin.
 LEARNERS = tuple(
-    n for n in methods.names() if methods.get(n).learns and methods.get(n).reference
+    n
+    for n in methods.names()
+    if methods.get(n).learns and methods.get(n).card.reference
 )
 
 

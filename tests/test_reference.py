@@ -15,7 +15,9 @@ from legs_jax.synthetic import make_problem
 
 # Every registered method that learns and has a NumPy twin.
 LEARNERS = tuple(
-    n for n in methods.names() if methods.get(n).learns and methods.get(n).reference
+    n
+    for n in methods.names()
+    if methods.get(n).learns and methods.get(n).card.reference
 )
 
 
@@ -306,7 +308,7 @@ def test_dirichlet_bound_against_scipy() -> None:
 def test_tql_update_arithmetic() -> None:
     pb = hand_problem([1.0], [[1.0]], [[0.5, 0.5]], [[0.3, 0.8]])
     hp = ref.check_hparams(pb, "tql", {"eta": 0.1})
-    m = methods.get("tql").reference(pb, 0, hp)
+    m = methods.get("tql").card.reference(pb, 0, hp)
     np.testing.assert_allclose(m.Q, [[0.3, 0.8]])  # Q0 = q
     expected = 0.3
     for r in (True, False, True, True):
@@ -345,7 +347,7 @@ def test_posterior_parameters() -> None:
     to [0.01, 0.99]."""
     pb = hand_problem([1.0], [[1.0]], np.zeros((1, 3)), [[0.0, 0.5, 1.0]])
     hp = ref.check_hparams(pb, "borges_2000", {"s": 2.0, "prior_offset": 1.0})
-    m = methods.get("borges_2000").reference(pb, 0, hp)
+    m = methods.get("borges_2000").card.reference(pb, 0, hp)
     np.testing.assert_allclose(m.alpha[0], [1.02, 2.0, 2.98])
     np.testing.assert_allclose(m.beta[0], [2.98, 2.0, 1.02])
     m.update(0, 1, True)
@@ -359,7 +361,7 @@ def test_thompson_selection_probability() -> None:
     = 5/6. 20000 selections; tolerance 4 standard errors (0.0105)."""
     pb = hand_problem([1.0], [[1.0]], np.zeros((1, 2)), [[0.5, 0.5]])
     hp = ref.check_hparams(pb, "borges_2000", {"s": 0.0, "prior_offset": 1.0})
-    m = methods.get("borges_2000").reference(pb, 0, hp)
+    m = methods.get("borges_2000").card.reference(pb, 0, hp)
     m.update(0, 0, True)  # Beta(2, 1)
     m.update(0, 1, False)  # Beta(1, 2)
     rng = np.random.default_rng(0)
@@ -373,7 +375,7 @@ def test_recommendation_rule() -> None:
     q = [[0.2, 0.9, 0.5, 0.7], [0.6, 0.1, 0.8, 0.3]]
     pb = hand_problem([0.5, 0.5], [[0.5, 0.5]] * 2, np.zeros((2, 4)), q)
     hp = ref.check_hparams(pb, "borges_2000", {"s": 0.0})
-    m = methods.get("borges_2000").reference(pb, 0, hp)
+    m = methods.get("borges_2000").card.reference(pb, 0, hp)
     np.testing.assert_array_equal(m.recommend(), [1, 2])
     m.update(0, 1, False)  # mean 1/3; untried grasps 0, 2, 3 all have 1/2
     np.testing.assert_array_equal(m.recommend(), [0, 2])
@@ -381,7 +383,7 @@ def test_recommendation_rule() -> None:
     np.testing.assert_array_equal(m.recommend(), [3, 2])
     # LEGS: an unvisited pose's candidates are its initial top-k.
     hp = ref.check_hparams(pb, "legs", {"k": 2})
-    m = methods.get("legs").reference(pb, 0, hp)
+    m = methods.get("legs").card.reference(pb, 0, hp)
     np.testing.assert_array_equal(m.slots, [[1, 3], [2, 0]])
     np.testing.assert_array_equal(m.recommend(), [1, 2])
 

@@ -1,8 +1,9 @@
 """The registry of exploration methods (SPEC §4): the one list of them.
 
 Each method lives in its own module of this folder that defines ``METHOD``, a
-:class:`legs_jax.methods.base.Method` declaring its functions, hyperparameters,
-labels and costs; a new module is found without being listed. Everything else
+:class:`legs_jax.methods.base.Method` declaring its algorithm (functions,
+hyperparameters, pruning schedule) and its :class:`~legs_jax.methods.base.Card`
+(labels, style, costs); a new module is found without being listed. Everything else
 (the engine, the NumPy reference, the sweep, the benchmark, the analysis and the
 figures) asks this registry. A method from outside
 the package is named ``my_pkg.my_module:METHOD`` (:func:`resolve`) and passes the

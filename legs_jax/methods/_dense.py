@@ -14,6 +14,7 @@ from legs_jax.methods.base import (
     Config,
     Ctx,
     argmax_first,
+    best_estimates,
     beta_counts,
     gather_at,
     gather_rows,
@@ -104,12 +105,7 @@ def recommend_init(st: DenseState, ctx: Ctx, cfg: Config):
 
 def estimates(st: DenseState, ctx: Ctx, cfg: Config):
     mean = st.alpha / (st.alpha + st.beta)
-    mask = _mask(st, ctx)
-    out = []
-    for m in (mask, mask & st.attempted):
-        best = jnp.max(jnp.where(m, mean, -jnp.inf), axis=-1)
-        out.append(jnp.where(jnp.any(m, axis=-1), best, 0.0))
-    return out[0], out[1]
+    return best_estimates(mean, _mask(st, ctx), st.attempted)
 
 
 def counts(st: DenseState, ctx: Ctx, cfg: Config):

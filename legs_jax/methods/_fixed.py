@@ -123,7 +123,8 @@ def candidates_top(st: FixedState, ctx: Ctx, cfg: Config):
 # The functions a method built on this state shares (besides ``init``).
 _SHARED = (select, update, recommend, recommend_init, estimates)
 FUNCTIONS = {f.__name__: f for f in _SHARED}
-# What the constant rows share besides their functions: they do not learn, a step
-# touches one grasp, and the benchmark charges them the rate of TQL (the same
-# per-step work: one lookup, one update).
-CONSTANT_ROW = dict(FUNCTIONS, learns=False, cost=lambda cfg: 1.0, bench_proxy="tql")
+# What the constant rows share besides their functions: they do not learn; on
+# their cards, a step touches one grasp and the benchmark charges them the rate of
+# TQL (the same per-step work: one lookup, one update).
+CONSTANT_ROW = dict(FUNCTIONS, learns=False)
+CONSTANT_ROW_CARD = dict(cost=lambda cfg: 1.0, bench_proxy="tql")

@@ -18,6 +18,7 @@ from legs_jax.methods.base import (
     Config,
     Ctx,
     argmin_id_of_max,
+    best_estimates,
     beta_counts,
     gather_at,
     posterior_prior,
@@ -82,12 +83,7 @@ def recommend_init(st: SlotState, ctx: Ctx, cfg: Config):
 
 def estimates(st: SlotState, ctx: Ctx, cfg: Config):
     mean = st.alpha / (st.alpha + st.beta)
-    mask = st.gid >= 0
-    out = []
-    for m in (mask, mask & st.attempted):
-        best = jnp.max(jnp.where(m, mean, -jnp.inf), axis=-1)
-        out.append(jnp.where(jnp.any(m, axis=-1), best, 0.0))
-    return out[0], out[1]
+    return best_estimates(mean, st.gid >= 0, st.attempted)
 
 
 def counts(st: SlotState, ctx: Ctx, cfg: Config):

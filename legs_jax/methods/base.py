@@ -36,14 +36,17 @@ __all__ = [
     "UNIT",
     "UNIT_OPEN",
     "BetaPrior",
+    "Card",
     "Config",
     "Ctx",
     "Method",
     "Range",
     "check_prior",
+    "every_n_steps",
     "Tables",
     "argmax_first",
     "argmin_id_of_max",
+    "best_estimates",
     "gather_rows",
     "gather_at",
     "posterior_prior",
@@ -174,8 +177,42 @@ class Config:
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
+class Card:
+    """What a method is besides its algorithm: how tables, figures, the benchmark
+    and the planner treat it. Declared in the method's file, beside its functions.
+
+    ``label`` names it in tables and figures, ``short_label`` in narrow tables,
+    ``style`` its line in figures; ``oracle`` marks a row that reads the ground
+    truth (not a method, never a competitor, never run on a robot);
+    ``cost(cfg)`` is the number of candidate grasps a step touches (planning) and
+    ``dense`` says its per-step work and state are O(K) (smaller batches suit it).
+    ``reference`` (or None) ``(problem, trial, hp)`` builds its one-rollout NumPy
+    twin (:mod:`legs_jax.reference`). ``bench`` makes it a row of the benchmark's
+    table (``legs_jax.bench``, timed against its NumPy twin); ``bench_proxy`` names
+    a method of that table with the same per-step work, whose measured rate
+    stands in for this one's when the benchmark projects a sweep. ``prior_only``
+    marks a row whose gap the prior and the reservoirs alone decide, by its rule:
+    ``"greedy"`` (the grasp of highest q) or ``"top"`` (the best true grasp among
+    the top-k by q); :mod:`precompute.analysis` computes those gaps without
+    running it.
+    """
+
+    label: str = ""
+    short_label: str = ""
+    style: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    oracle: bool = False
+    cost: Callable[[Config], float] = lambda cfg: float(cfg.num_grasps)
+    dense: bool = False
+    reference: Callable[..., Any] | None = None
+    bench: bool = False
+    bench_proxy: str = ""
+    prior_only: str = ""
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
 class Method:
-    """One exploration method: its pure functions and everything else about it.
+    """One exploration method: the algorithm (pure functions and hyperparameters)
+    and its :class:`Card`.
 
     Every function takes the method state (a pytree with leading axis B), the
     :class:`Ctx` and the static :class:`Config`; ``s`` is the current pose [B].
@@ -191,8 +228,13 @@ class Method:
       learn from the outcome [B] bool; rows with ``live`` False must not change.
       ``new`` [B] bool: the (pose, grasp) had never been attempted.
     - ``prune`` (or None) ``(state, ctx, cfg, s, live) -> (state, removed)``: called
-      after the update of every step t ≡ 0 (mod cfg.n) for the pose just grasped;
-      ``removed`` [B] i32 counts the grasps taken out.
+      after the update of a step where ``prune_due`` says so, for the pose just
+      grasped; rows with ``live`` False must not change; ``removed`` [B] i32
+      counts the grasps taken out.
+    - ``prune_due`` ``(state, ctx, cfg, s, t) -> [B]`` bool: the method's pruning
+      schedule, read after the update of step t (``state`` is the updated one);
+      the rows where it is False are passed to ``prune`` as not live. Needed with
+      ``prune`` (:func:`every_n_steps` is LEGS's).
     - ``recommend(state, ctx, cfg, s) -> [B]``: π_t(s) for the pose just updated
       (a visited pose), a grasp id.
     - ``recommend_updated`` (or None) ``(rows, ctx, cfg, s, slot, reward, live)
@@ -209,7 +251,8 @@ class Method:
     - ``candidates(state, ctx, cfg) -> [B, P, K]`` bool: the candidate set, dense
       (for tests and conformance checks; not used in the loop).
     - ``active_set`` (or None) ``(state, ctx, cfg) -> [B, P, k]`` grasp ids, -1 for
-      an empty slot.
+      an empty slot; ``active_width(cfg)`` is k, the number of slots a recorded
+      active set has (those of a method without one are all -1).
 
     Besides the functions a method declares its hyperparameters: ``hparams``, a
     NamedTuple class whose fields are their names with their defaults;
@@ -219,20 +262,10 @@ class Method:
     ``check`` (or None) ``(hp, num_grasps)``, which refuses combinations
     (``hp`` maps every name to an array over the grid points; ``num_grasps`` K is
     None where the problems are not known yet) with a
-    :class:`legs_jax.errors.ConfigError`. ``label`` names it in tables and
-    figures, ``short_label`` in narrow tables, ``style`` its line in figures;
-    ``oracle`` marks a row that reads the ground truth (not a method, never a
-    competitor); ``cost(cfg)`` is the number of candidate grasps a step touches
-    (planning) and ``dense`` says its per-step work and state are O(K) (smaller
-    batches suit it). ``reference`` (or None) ``(problem, trial, hp)`` builds its
-    one-rollout NumPy twin (:mod:`legs_jax.reference`). ``bench`` makes it a row of
-    the benchmark's table (``legs_jax.bench``, timed against its NumPy twin);
-    ``bench_proxy`` names a method of that table with the same per-step work, whose
-    measured rate stands in for this one's when the benchmark projects a sweep.
-    ``prior_only`` marks a row whose gap the prior and the reservoirs alone decide,
-    by its rule: ``"greedy"`` (the grasp of highest q) or ``"top"`` (the best true
-    grasp among the top-k by q); :mod:`precompute.analysis` computes those gaps
-    without running it.
+    :class:`legs_jax.errors.ConfigError`. ``learns`` is False for a constant row
+    (its recommendation never changes). Everything about the method that is not
+    the algorithm (how it is named and drawn, benchmarked and planned) is its
+    :class:`Card`.
     """
 
     name: str
@@ -245,7 +278,9 @@ class Method:
     estimates: Callable[..., tuple[jax.Array, jax.Array]]
     candidates: Callable[..., jax.Array]
     prune: Callable[..., tuple[Any, jax.Array]] | None = None
+    prune_due: Callable[..., jax.Array] | None = None
     active_set: Callable[..., jax.Array] | None = None
+    active_width: Callable[[Config], int] = lambda cfg: TOP_FIXED
     recommend_updated: Callable[..., jax.Array] | None = None
     counts: Callable[..., tuple] | None = None
     learns: bool = True  # False for the constant rows (Dex-Net, K100 UB)
@@ -255,16 +290,7 @@ class Method:
     )
     static: tuple[str, ...] = ()
     check: Callable[[Mapping[str, np.ndarray], int | None], None] | None = check_prior
-    label: str = ""
-    short_label: str = ""
-    style: Mapping[str, Any] = dataclasses.field(default_factory=dict)
-    oracle: bool = False
-    cost: Callable[[Config], float] = lambda cfg: float(cfg.num_grasps)
-    dense: bool = False
-    reference: Callable[..., Any] | None = None
-    bench: bool = False
-    bench_proxy: str = ""
-    prior_only: str = ""
+    card: Card = dataclasses.field(default_factory=lambda: Card())
 
     def defaults(self) -> dict[str, float | int]:
         """Every hyperparameter with its default."""
@@ -292,9 +318,28 @@ def _traced_type(hparams: type, static: tuple[str, ...]) -> type:
 # ----------------------------------------------------------------------- helpers
 
 
+def every_n_steps(state: Any, ctx: Ctx, cfg: Config, s: jax.Array, t) -> jax.Array:
+    """LEGS's pruning schedule: every step t ≡ 0 (mod n), n the method's static
+    hyperparameter ``n`` ([B] bool, the same for every row)."""
+    return jnp.broadcast_to(t % cfg.n == 0, s.shape)
+
+
 #: Index of the maximum along an axis, the lowest one on ties (as np.argmax):
 #: :func:`legs_jax.sampling.argmax_first`, faster than ``jnp.argmax`` on CPU.
 argmax_first = sampling.argmax_first
+
+
+def best_estimates(
+    value: jax.Array, candidate: jax.Array, attempted: jax.Array
+) -> tuple[jax.Array, jax.Array]:
+    """A method's ``estimates``: the largest ``value`` [B, P, N] over the
+    candidates of each pose, and over the attempted candidates only (0 where
+    there are none); ([B, P], [B, P])."""
+    out = []
+    for m in (candidate, candidate & attempted):
+        best = jnp.max(jnp.where(m, value, -jnp.inf), axis=-1)
+        out.append(jnp.where(jnp.any(m, axis=-1), best, 0.0))
+    return out[0], out[1]
 
 
 def argmin_id_of_max(

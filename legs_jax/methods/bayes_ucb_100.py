@@ -4,4 +4,11 @@ NumPy twin are those of :mod:`legs_jax.methods.bayes_ucb_2000`."""
 
 from legs_jax.methods.bayes_ucb_2000 import make
 
-METHOD = make("bayes_ucb_100", top=True, style=dict(color="#bcbd22", ls="--", lw=1.6))
+METHOD = make(
+    "bayes_ucb_100",
+    top=True,
+    description="Bayes-UCB (K=100): highest posterior quantile over the top-100",
+    label="Bayes-UCB (K_s=100)",
+    short_label="BayesUCB-100",
+    style=dict(color="#bcbd22", ls="--", lw=1.6),
+)

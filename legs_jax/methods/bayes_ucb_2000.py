@@ -28,6 +28,7 @@ from legs_jax import sampling
 from legs_jax.methods import _dense, _slots
 from legs_jax.methods.base import (
     TOP_FIXED,
+    Card,
     Method,
     argmax_first,
     argmin_id_of_max,
@@ -133,17 +134,12 @@ def _blocks(lv, a, b, pending) -> jax.Array:
     return grasp
 
 
-def make(name: str, top: bool, **declaration) -> Method:
+def make(name: str, top: bool, description: str, **card) -> Method:
     """Bayes-UCB over the top-100 grasps by prior (``top``) or over all K; its
-    description, labels, cost, density and NumPy twin follow from ``top``
-    (``declaration`` adds the rest, e.g. its style)."""
+    cost, density and NumPy twin follow from ``top`` (``card`` adds the rest of
+    its :class:`Card`: its labels and style)."""
     base = _slots if top else _dense
-    k = TOP_FIXED if top else 2000
-    over = "the top-100" if top else "all K grasps"
-    declaration = {
-        "description": f"Bayes-UCB (K={k}): highest posterior quantile over {over}",
-        "label": f"Bayes-UCB (K_s={k})",
-        "short_label": f"BayesUCB-{k}",
+    card = {
         "reference": lambda problem, trial, hp: Reference(
             problem, trial, hp, top=TOP_FIXED if top else None
         ),
@@ -154,7 +150,7 @@ def make(name: str, top: bool, **declaration) -> Method:
             if top
             else {"dense": True, "bench": True}
         ),
-        **declaration,
+        **card,
     }
 
     def init(ctx, cfg):
@@ -196,7 +192,8 @@ def make(name: str, top: bool, **declaration) -> Method:
         estimates=lambda st, ctx, cfg: base.estimates(st.inner, ctx, cfg),
         counts=lambda st, ctx, cfg: base.counts(st.inner, ctx, cfg),
         candidates=lambda st, ctx, cfg: base.candidates(st.inner, ctx, cfg),
-        **declaration,
+        description=description,
+        card=Card(**card),
     )
 
 
@@ -219,4 +216,11 @@ class Reference(ref.Borges):
         self.count[s] += 1
 
 
-METHOD = make("bayes_ucb_2000", top=False, style=dict(color="#17becf", ls="--", lw=1.6))
+METHOD = make(
+    "bayes_ucb_2000",
+    top=False,
+    description="Bayes-UCB (K=2000): highest posterior quantile over all K grasps",
+    label="Bayes-UCB (K_s=2000)",
+    short_label="BayesUCB-2000",
+    style=dict(color="#17becf", ls="--", lw=1.6),
+)

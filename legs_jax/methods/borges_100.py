@@ -2,17 +2,21 @@
 
 from legs_jax import reference as ref
 from legs_jax.methods import _slots
-from legs_jax.methods.base import TOP_FIXED, Method
+from legs_jax.methods.base import TOP_FIXED, Card, Method
 
 METHOD = Method(
     name="borges_100",
     description="BORGES (K=100): Thompson sampling over the top-100 by prior",
-    bench_proxy="legs",
     **_slots.FUNCTIONS,
     init=lambda ctx, cfg: _slots.init(ctx, cfg, cfg.top, refill=False),
-    label="BORGES (K_s=100)",
-    short_label="BORGES-100",
-    style=dict(color="#ff7f0e", ls="-", lw=1.6),
-    cost=lambda cfg: float(cfg.top),
-    reference=lambda problem, trial, hp: ref.Borges(problem, trial, hp, top=TOP_FIXED),
+    card=Card(
+        bench_proxy="legs",
+        label="BORGES (K_s=100)",
+        short_label="BORGES-100",
+        style=dict(color="#ff7f0e", ls="-", lw=1.6),
+        cost=lambda cfg: float(cfg.top),
+        reference=lambda problem, trial, hp: ref.Borges(
+            problem, trial, hp, top=TOP_FIXED
+        ),
+    ),
 )

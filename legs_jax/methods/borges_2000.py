@@ -2,17 +2,19 @@
 
 from legs_jax import reference as ref
 from legs_jax.methods import _dense
-from legs_jax.methods.base import Method
+from legs_jax.methods.base import Card, Method
 
 METHOD = Method(
     name="borges_2000",
     description="BORGES (K=2000): Thompson sampling over all K grasps",
-    bench=True,
     **_dense.FUNCTIONS,
     init=lambda ctx, cfg: _dense.init(ctx, cfg, removable=False),
-    label="BORGES (K_s=2000)",
-    short_label="BORGES-2000",
-    style=dict(color="#2ca02c", ls="-", lw=1.6),
-    dense=True,
-    reference=lambda problem, trial, hp: ref.Borges(problem, trial, hp, top=None),
+    card=Card(
+        bench=True,
+        label="BORGES (K_s=2000)",
+        short_label="BORGES-2000",
+        style=dict(color="#2ca02c", ls="-", lw=1.6),
+        dense=True,
+        reference=lambda problem, trial, hp: ref.Borges(problem, trial, hp, top=None),
+    ),
 )

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from legs_jax.errors import ConfigError
-from legs_jax.methods.base import Method
+from legs_jax.methods.base import Card, Method
 
 __all__ = ["check", "check_declaration"]
 
@@ -49,10 +49,18 @@ def check_declaration(method: Any, where: str = "") -> None:
     for f in _FUNCTIONS:
         if not callable(getattr(method, f)):
             raise ConfigError(f"{at}: {f} is not callable")
-    for f in ("prune", "active_set", "recommend_updated", "reference", "check"):
-        v = getattr(method, f)
+    if not isinstance(method.card, Card):
+        raise ConfigError(f"{at}: card must be a legs_jax.methods.base.Card")
+    optional = ("prune", "prune_due", "active_set", "recommend_updated", "check")
+    for f, v in [(f, getattr(method, f)) for f in optional] + [
+        ("card.reference", method.card.reference)
+    ]:
         if v is not None and not callable(v):
             raise ConfigError(f"{at}: {f} must be callable or None")
+    if method.prune is not None and method.prune_due is None:
+        raise ConfigError(f"{at}: prune needs prune_due, its schedule")
+    if not callable(method.active_width):
+        raise ConfigError(f"{at}: active_width is not callable")
     hp = method.hparams
     fields = getattr(hp, "_fields", None)
     if not isinstance(hp, type) or fields is None:

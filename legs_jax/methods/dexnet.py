@@ -7,19 +7,22 @@ Dirichlet check.
 
 from legs_jax import reference as ref
 from legs_jax.methods import _fixed
-from legs_jax.methods.base import Method
+from legs_jax.methods.base import Card, Method
 
 METHOD = Method(
     name="dexnet",
     description="Dex-Net: argmax prior, no exploration (constant gap)",
     **_fixed.CONSTANT_ROW,
-    prior_only="greedy",
     init=lambda ctx, cfg: _fixed.init(ctx, cfg, choose=_fixed.prior_choice),
     candidates=_fixed.candidates_dexnet,
-    label="Dex-Net (prior only)",
-    short_label="Dex-Net*",
-    style=dict(color="#7f7f7f", ls="--", lw=1.6),
-    reference=lambda problem, trial, hp: ref.Fixed(
-        problem, trial, hp, ref.prior_choice(problem, trial)
+    card=Card(
+        **_fixed.CONSTANT_ROW_CARD,
+        prior_only="greedy",
+        label="Dex-Net (prior only)",
+        short_label="Dex-Net*",
+        style=dict(color="#7f7f7f", ls="--", lw=1.6),
+        reference=lambda problem, trial, hp: ref.Fixed(
+            problem, trial, hp, ref.prior_choice(problem, trial)
+        ),
     ),
 )

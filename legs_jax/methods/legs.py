@@ -3,9 +3,10 @@ pruned every n steps by the LEGS rule and refilled from the reservoir in descend
 q (SPEC §4).
 
 The active set of every pose is built at step 0 (it depends on nothing learned, so
-this equals building it on the first visit). :func:`prune` is the pruning step of
-one pose as a pure function of the state; :func:`legs_jax.methods.base.prune_mask`
-is the removal set alone.
+this equals building it on the first visit). The pruning step of one pose is
+:func:`legs_jax.methods._slots.prune_refill`, a pure function of the state;
+:func:`legs_jax.methods.base.prune_mask` is the removal set alone and
+:func:`legs_jax.methods.base.every_n_steps` LEGS's schedule of it.
 """
 
 from typing import NamedTuple
@@ -19,12 +20,13 @@ from legs_jax.methods.base import (
     COUNT,
     PRIOR_RANGES,
     UNIT_OPEN,
+    Card,
     Method,
     check_prior,
-    prune_mask,
+    every_n_steps,
 )
 
-__all__ = ["METHOD", "LegsHParams", "prune_mask"]
+__all__ = ["METHOD", "LegsHParams"]
 
 
 class LegsHParams(NamedTuple):
@@ -57,18 +59,22 @@ def check(hp, num_grasps):
 METHOD = Method(
     name="legs",
     description="LEGS: active set of k grasps, pruned and refilled",
-    bench=True,
     **_slots.FUNCTIONS,
     init=lambda ctx, cfg: _slots.init(ctx, cfg, cfg.k, refill=True),
     prune=_slots.prune_refill,
+    prune_due=every_n_steps,
     active_set=_slots.active_set,
+    active_width=lambda cfg: cfg.k,
     hparams=LegsHParams,
     ranges=RANGES,
     static=("k", "n"),
     check=check,
-    label="LEGS",
-    short_label="LEGS",
-    style=dict(color="#d62728", ls="-", lw=2.4),
-    cost=lambda cfg: float(min(cfg.k, cfg.num_grasps)),
-    reference=ref.Legs,
+    card=Card(
+        bench=True,
+        label="LEGS",
+        short_label="LEGS",
+        style=dict(color="#d62728", ls="-", lw=2.4),
+        cost=lambda cfg: float(min(cfg.k, cfg.num_grasps)),
+        reference=ref.Legs,
+    ),
 )

@@ -5,7 +5,14 @@ from typing import NamedTuple
 
 from legs_jax import reference as ref
 from legs_jax.methods import _dense
-from legs_jax.methods.base import COUNT, PRIOR_RANGES, UNIT_OPEN, Method
+from legs_jax.methods.base import (
+    COUNT,
+    PRIOR_RANGES,
+    UNIT_OPEN,
+    Card,
+    Method,
+    every_n_steps,
+)
 
 
 class LegsNoASHParams(NamedTuple):
@@ -19,16 +26,19 @@ class LegsNoASHParams(NamedTuple):
 METHOD = Method(
     name="legs_no_as",
     description="LEGS(-AS): all K grasps, LEGS pruning, no active set",
-    bench_proxy="borges_2000",
     **_dense.FUNCTIONS,
     init=lambda ctx, cfg: _dense.init(ctx, cfg, removable=True),
     prune=_dense.prune,
+    prune_due=every_n_steps,
     hparams=LegsNoASHParams,
     ranges={**PRIOR_RANGES, "delta": UNIT_OPEN, "gamma": UNIT_OPEN, "n": COUNT},
     static=("n",),
-    label="LEGS(-AS)",
-    short_label="LEGS(-AS)",
-    style=dict(color="#1f77b4", ls="-", lw=1.6),
-    dense=True,
-    reference=ref.LegsNoAS,
+    card=Card(
+        bench_proxy="borges_2000",
+        label="LEGS(-AS)",
+        short_label="LEGS(-AS)",
+        style=dict(color="#1f77b4", ls="-", lw=1.6),
+        dense=True,
+        reference=ref.LegsNoAS,
+    ),
 )

@@ -11,10 +11,12 @@ import jax.numpy as jnp
 from legs_jax import reference as ref
 from legs_jax.methods.base import (
     UNIT,
+    Card,
     Config,
     Ctx,
     Method,
     argmax_first,
+    best_estimates,
     gather_at,
     updated_row,
 )
@@ -80,12 +82,7 @@ def recommend_init(st: TQLState, ctx: Ctx, cfg: Config):
 
 
 def estimates(st: TQLState, ctx: Ctx, cfg: Config):
-    valid = ctx.tables.valid[ctx.ot]
-    out = []
-    for m in (valid, valid & st.attempted):
-        best = jnp.max(jnp.where(m, st.Q, -jnp.inf), axis=-1)
-        out.append(jnp.where(jnp.any(m, axis=-1), best, 0.0))
-    return out[0], out[1]
+    return best_estimates(st.Q, ctx.tables.valid[ctx.ot], st.attempted)
 
 
 def candidates(st: TQLState, ctx: Ctx, cfg: Config):
@@ -95,7 +92,6 @@ def candidates(st: TQLState, ctx: Ctx, cfg: Config):
 METHOD = Method(
     name="tql",
     description="Tabular Q-learning, ε-greedy over all K grasps",
-    bench=True,
     init=init,
     select=select,
     update=update,
@@ -107,10 +103,13 @@ METHOD = Method(
     hparams=TQLHParams,
     ranges={"epsilon": UNIT, "eta": UNIT},
     check=None,
-    label="TQL",
-    short_label="TQL",
-    style=dict(color="#9467bd", ls="-", lw=1.6),
-    cost=lambda cfg: cfg.num_grasps / 8.0,  # no sampling: a masked argmax
-    dense=True,
-    reference=ref.TQL,
+    card=Card(
+        bench=True,
+        label="TQL",
+        short_label="TQL",
+        style=dict(color="#9467bd", ls="-", lw=1.6),
+        cost=lambda cfg: cfg.num_grasps / 8.0,  # no sampling: a masked argmax
+        dense=True,
+        reference=ref.TQL,
+    ),
 )

@@ -2,8 +2,9 @@
 
 A session is one rollout (B = 1) of the batched engine's step, cut at the point
 where the world answers: :meth:`Loop.select` is the engine's ``select`` and
-:meth:`Loop.tell` its ``update`` → prune when t ≡ 0 (mod n) → recommendation of
-the pose just grasped, in the engine's order and with the engine's key streams
+:meth:`Loop.tell` its :func:`legs_jax.engine.agent_step` (update → prune where the
+method's schedule says → recommendation of the pose just grasped), with the
+engine's key streams
 (method draws of step t from ``fold_in(method_key, t)``, check c from
 ``fold_in(check_key, c)``). The Dirichlet bound is
 :func:`legs_jax.engine.dirichlet_quantiles`. Every function is jitted once per
@@ -41,7 +42,7 @@ __all__ = ["ORACLES", "Loop", "default_method", "method_names", "check_hparams"]
 
 # Methods that read the ground truth p (declared ``oracle``): they cannot run on a
 # robot.
-ORACLES = tuple(m for m in methods_mod.names() if methods_mod.get(m).oracle)
+ORACLES = tuple(m for m in methods_mod.names() if methods_mod.get(m).card.oracle)
 
 
 def default_method() -> str:
@@ -51,12 +52,12 @@ def default_method() -> str:
 
 def method_names() -> tuple[str, ...]:
     """Registered methods that can run online (every one but the oracles)."""
-    return tuple(m for m in methods_mod.names() if not methods_mod.get(m).oracle)
+    return tuple(m for m in methods_mod.names() if not methods_mod.get(m).card.oracle)
 
 
 def _method(method: str) -> Method:
     """The registered method ``method``, refusing oracles and unknown names."""
-    if method in methods_mod.names() and methods_mod.get(method).oracle:
+    if method in methods_mod.names() and methods_mod.get(method).card.oracle:
         raise ConfigError(
             f"{method} reads the ground-truth success probabilities and cannot run "
             f"on a robot; choose one of {', '.join(method_names())}"
@@ -138,28 +139,15 @@ def _programs(method: str, cfg: Config):
         return grasp, slot
 
     def tell(ms, rec, tables, hp, s, grasp, slot, reward, t):
-        c = ctx(tables, hp)
         live = tables.n_valid[0, s] > 0
-        reward = reward & live
-        ms, new = m.update(ms, c, cfg, s, grasp, slot, reward, live)
-        removed = jnp.zeros(1, jnp.int32)
-        lost = jnp.zeros((1, P, stopping.CELLS), jnp.float32)
-        if m.prune is not None:
-            updated = ms
-            ms, removed = jax.lax.cond(
-                t % cfg.n == 0,
-                lambda st: m.prune(st, c, cfg, s, live),
-                lambda st: (st, jnp.zeros(1, jnp.int32)),
-                ms,
-            )
-            if m.counts is not None:  # our bound keeps the grasps a prune forgets
-                lost = stopping.forgotten_cells(
-                    m.counts(updated, c, cfg), m.counts(ms, c, cfg)
-                )
-        if m.learns:
-            rec_s = m.recommend(ms, c, cfg, s)
-            rec = rec.at[0, s[0]].set(jnp.where(live[0], rec_s[0], rec[0, s[0]]))
-        return ms, rec, new, removed, lost
+        a = engine.agent_step(
+            m, ms, rec, ctx(tables, hp), cfg, s, grasp, slot, None, reward & live,
+            live, t,
+        )  # fmt: skip
+        lost = a.lost  # our bound keeps the grasps a prune forgets
+        if not engine.forgets(m):
+            lost = jnp.zeros((1, P, stopping.CELLS), jnp.float32)
+        return a.state, a.rec, a.new, a.removed, lost
 
     def estimates(ms, tables, hp):
         return m.estimates(ms, ctx(tables, hp), cfg)

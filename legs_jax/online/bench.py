@@ -52,7 +52,9 @@ def _timed_methods() -> tuple[str, str]:
     from legs_jax import methods
 
     dense = [
-        m for m in methods.names() if methods.get(m).bench and methods.get(m).dense
+        m
+        for m in methods.names()
+        if methods.get(m).card.bench and methods.get(m).card.dense
     ]
     return methods.DEFAULT, dense[0]
 

@@ -218,16 +218,22 @@ def _pose_bucket(p: int) -> int:
     return -(-p // last) * last
 
 
-def _rollout_work(arm: Arm, P: int, K: int, horizon: int, check_every: int) -> float:
-    """Cost model: the candidate grasps a step touches (the method's declared
-    ``cost``; about one exact Beta draw each) plus a fixed cost a step, and the
-    Dirichlet checks."""
+def _static_config(arm: Arm, P: int, K: int):
+    """The arm's method and its static configuration (that of its first grid
+    point) on problems of P poses and K grasps."""
     from legs_jax.methods.base import Config
 
     m = _method(arm.method)
     point = dict(arm.grid[0])
-    cfg = Config(num_poses=P, num_grasps=K, **{n: point[n] for n in m.static})
-    steps = horizon * (m.cost(cfg) + 32.0)
+    return m, Config(num_poses=P, num_grasps=K, **{n: point[n] for n in m.static})
+
+
+def _rollout_work(arm: Arm, P: int, K: int, horizon: int, check_every: int) -> float:
+    """Cost model: the candidate grasps a step touches (the method's declared
+    ``cost``; about one exact Beta draw each) plus a fixed cost a step, and the
+    Dirichlet checks."""
+    m, cfg = _static_config(arm, P, K)
+    steps = horizon * (m.card.cost(cfg) + 32.0)
     n_checks = horizon // check_every if check_every else 0
     return steps + n_checks * DIRICHLET_SAMPLES * (P + 1)
 
@@ -280,7 +286,10 @@ def plan_chunks(
         for (P, K), members in groups.items():
             every = cfg.check_every if record_checks else 0
             w = _rollout_work(arm, P, K, cfg.horizon, every)
-            width = int(dict(arm.grid[0]).get("k", 100)) if record_act else 0
+            width = 0  # slots of a recorded active set
+            if record_act:
+                m, static_cfg = _static_config(arm, P, K)
+                width = int(m.active_width(static_cfg))
             m = _trial_memory(P, K, G, cfg.rollouts, cfg, width)
             per_trial = G * cfg.rollouts
             cap = int(min(work_budget / (per_trial * w), memory_budget / m))
