@@ -30,6 +30,7 @@ __all__ = [
     "default_prior",
     "prior_params",
     "score_reservoirs",
+    "scorer",
 ]
 
 PRIORS = ("learned", "synthetic")
@@ -82,7 +83,9 @@ def prior_params() -> dict:
     return dict(_PARAMS[key])
 
 
-def _scorer():
+def scorer():
+    """The network of the shipped weights, built once per weights file:
+    ``scorer()(image, centers, axes) -> q``."""
     from .gqcnn import Scorer, load_weights
 
     sha = prior_params()["weights_sha256"]
@@ -96,7 +99,7 @@ def _scorer():
 def score_reservoirs(caster, reservoirs, rngs) -> np.ndarray:
     """[T, K] float32 q of the reservoirs of one pose (``caster``: the posed mesh),
     trial t seen through the noise of ``rngs[t]``."""
-    scorer = _scorer()
+    net = scorer()
     clean = _depth.downsample(_depth.render(caster))
     K = len(reservoirs[0].valid)
     out = np.zeros((len(reservoirs), K), np.float32)
@@ -108,5 +111,5 @@ def score_reservoirs(caster, reservoirs, rngs) -> np.ndarray:
             # function of the recorded grasp poses and the image alone
             c = res.center[v].astype(np.float32)
             a = res.axis[v].astype(np.float32)
-            out[t, v] = scorer(img, c, a)
+            out[t, v] = net(img, c, a)
     return out

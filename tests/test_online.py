@@ -94,6 +94,40 @@ def test_recognition_same_pose_new_pose_and_alignment(tmp_path, clamp):
         assert o3["new"] and o3["pose"] == 1
 
 
+def test_first_match_aligns_one_candidate_and_decides_as_the_full_search(clamp):
+    """With every pose of bar_clamp cached, a view of a known pose is settled by
+    the first candidate that matches (one alignment instead of four) and given
+    the pose the full search (every candidate, best fraction) gives; a view of a
+    pose not cached is compared with every candidate either way."""
+    from legs_jax.online import recognition as R
+
+    rob = SimRobot(clamp, np.random.default_rng(3))  # the 640x480 camera
+    first, full = R.PoseLibrary(seed=0), R.PoseLibrary(seed=0, first_match=False)
+    truth = []
+    for s in range(clamp.num_poses - 1):  # the last pose stays unseen
+        rob.place(s)
+        pts, _ = R.object_cloud(rob.render(), rob.intrinsics, rob.camera_pose)
+        _, cloud = first.recognise(pts)
+        first.add(cloud)
+        full.add(cloud)
+        truth.append(s)
+    aligned = []
+    for k in range(12):
+        s = k % clamp.num_poses
+        rob.place(s)
+        pts, _ = R.object_cloud(rob.render(), rob.intrinsics, rob.camera_pose)
+        a, _ = first.recognise(pts)
+        b, _ = full.recognise(pts)
+        assert a.pose == b.pose  # the same decision
+        if s < len(truth):
+            assert a.pose is not None and truth[a.pose] == s
+            aligned.append(a.candidates)
+        else:  # the unseen pose: no match, every candidate compared
+            assert a.pose is None and a.candidates == min(len(truth), R.CANDIDATES)
+    # known poses: mostly settled by the first candidate (never more than four)
+    assert np.median(aligned) == 1 and max(aligned) <= R.CANDIDATES
+
+
 def test_distance_grid_reads_the_capped_distance_to_the_cloud():
     """The yaw search's grid: nearest-node and trilinear reads are within half a
     lattice diagonal of the exact capped distance (both are 1-Lipschitz), and

@@ -31,7 +31,10 @@ objects differ by less than the sensor noise from above and cannot be told apart
 Only the ``CANDIDATES`` = 4 cached poses nearest by a yaw-invariant descriptor (a
 histogram of distance from the centroid's vertical × height) are aligned in full;
 on those views the right pose was always first or second by descriptor, and it
-keeps recognition time flat in the number of cached poses.
+keeps recognition time flat in the number of cached poses. They are aligned in
+the descriptor's order and the first that matches is taken (``first_match``;
+``first_match=False`` aligns all of them and takes the best fraction): a known
+pose usually costs one alignment instead of four, a new pose still all four.
 
 Exact nearest neighbours (ICP, the fractions) come from SciPy's ``cKDTree`` (one
 tree per cached pose, kept in memory; one thread: the queries are small, and
@@ -257,6 +260,7 @@ class PoseLibrary:
         seed: int = 0,
         tolerance: float = TOLERANCE,
         match_fraction: float = MATCH_FRACTION,
+        first_match: bool = True,
     ):
         self.clouds: list[np.ndarray] = []
         self._trees: list[cKDTree] = []
@@ -265,6 +269,7 @@ class PoseLibrary:
         self._seed = seed
         self.tolerance = tolerance
         self.match_fraction = match_fraction
+        self.first_match = first_match
 
     def __len__(self) -> int:
         return len(self.clouds)
@@ -284,9 +289,12 @@ class PoseLibrary:
             self._grids[j] = DistanceGrid(self._trees[j], self.clouds[j])
         return self._grids[j]
 
-    def align(self, points: np.ndarray):
+    def align(self, points: np.ndarray, stop_at: float | None = None):
         """(the demeaned cloud, its mean, the alignments onto the candidate cached
-        poses, best first by the fraction at the library's tolerance)."""
+        poses, best first by the fraction at the library's tolerance).
+
+        ``stop_at``: align the candidates in the descriptor's order and stop after
+        the first whose fraction reaches it (it is then the only one returned)."""
         mean = points.mean(0)
         mean[2] = 0.0
         obs = points - mean
@@ -315,7 +323,10 @@ class PoseLibrary:
             # cached points taken back into the observed cloud's frame
             back_pts = (self.clouds[j] - t) @ R
             back = obs_tree.query(back_pts, distance_upper_bound=_CAP)[0]
-            out.append(Alignment(int(j), R, t, fwd, back))
+            a = Alignment(int(j), R, t, fwd, back)
+            if stop_at is not None and a.fraction(self.tolerance) >= stop_at:
+                return obs, mean, [a]
+            out.append(a)
         out.sort(key=lambda a: -a.fraction(self.tolerance))
         return obs, mean, out
 
@@ -324,7 +335,8 @@ class PoseLibrary:
 
         Returns (the match, the cloud in the pose frame it would have as a new
         pose). The library is not changed (call :meth:`add` for a new pose)."""
-        obs, mean, aligned = self.align(points)
+        stop = self.match_fraction if self.first_match else None
+        obs, mean, aligned = self.align(points, stop_at=stop)
         new_tf = np.eye(4)
         new_tf[:3, 3] = -mean
         if not aligned:

@@ -51,8 +51,10 @@ from legs_jax.online.recognition import MIN_HEIGHT
 from precompute import grasps as G
 
 __all__ = [
+    "DEFAULT_PRIOR",
     "DEPTH_OFFSETS",
     "FRICTION",
+    "PRIORS",
     "Grasps",
     "View",
     "default_prior",
@@ -156,35 +158,37 @@ def learned_prior(grasps: Grasps, view: View) -> np.ndarray:
         return np.zeros(0)
     image, offset = prior_view(view)
     centers = (grasps.center - offset).astype(np.float32)
-    return learned._scorer()(image, centers, grasps.axis.astype(np.float32))
+    return learned.scorer()(image, centers, grasps.axis.astype(np.float32))
 
 
-def default_prior(name: str = "learned"):
-    """The prior named ``name`` ("learned" or "geometric"); the learned prior
+# The priors a session can name, and the default.
+PRIORS = {"learned": learned_prior, "geometric": geometric_prior}
+DEFAULT_PRIOR = "learned"
+
+
+def default_prior(name: str = DEFAULT_PRIOR):
+    """The prior named ``name`` (a key of :data:`PRIORS`); the learned prior
     falls back to the geometric stand-in, with a warning that says so, where
     its weights are missing."""
     from precompute import learned
 
-    if name not in ("learned", "geometric"):
-        raise ValueError(f"unknown prior {name!r}; one of learned, geometric")
-    if name == "geometric":
+    if name not in PRIORS:
+        raise ValueError(f"unknown prior {name!r}; one of {', '.join(PRIORS)}")
+    if PRIORS[name] is learned_prior and not learned.available():
+        warnings.warn(
+            "the learned prior's weights are missing (precompute/prior_weights): new "
+            "poses are scored by the geometric stand-in prior",
+            stacklevel=2,
+        )
         return geometric_prior
-    if learned.available():
-        return learned_prior
-    warnings.warn(
-        "the learned prior's weights are missing (precompute/prior_weights): new "
-        "poses are scored by the geometric stand-in prior",
-        stacklevel=2,
-    )
-    return geometric_prior
+    return PRIORS[name]
 
 
 def prior_name(prior) -> str:
     """How a prior is named in the session's records."""
-    if prior is learned_prior:
-        return "learned"
-    if prior is geometric_prior:
-        return "geometric"
+    for name, f in PRIORS.items():
+        if prior is f:
+            return name
     return f"custom: {getattr(prior, '__qualname__', type(prior).__name__)}"
 
 

@@ -69,7 +69,9 @@ class Session:
         self.camera_pose = np.asarray(cfg["camera_pose"], np.float64)
         self.given = bool(cfg.get("given_poses", False))
         # a callable, or the name of the prior the session was created with
-        self._prior = prior if prior is not None else cfg.get("prior", "learned")
+        self._prior = (
+            prior if prior is not None else cfg.get("prior", sampler_mod.DEFAULT_PRIOR)
+        )
         self.loop = Loop(
             self.method,
             self.max_poses,
@@ -129,10 +131,11 @@ class Session:
         if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
             raise InputError(f"seed must be an integer >= 0, got {seed!r}")
         if prior is None:
-            prior = "learned"
-        if isinstance(prior, str) and prior not in ("learned", "geometric"):
+            prior = sampler_mod.DEFAULT_PRIOR
+        if isinstance(prior, str) and prior not in sampler_mod.PRIORS:
             raise InputError(
-                f"prior must be learned, geometric or a function, got {prior!r}"
+                f"prior must be one of {', '.join(sampler_mod.PRIORS)} or a "
+                f"function, got {prior!r}"
             )
         for name, v, lo in (
             ("max_poses", max_poses, 1),
