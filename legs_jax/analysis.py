@@ -19,13 +19,12 @@ import numpy as np
 import pandas as pd
 
 import experiments
-from legs_jax.results import HPARAM_COLUMNS
+from legs_jax.results import hparam_columns
 
 __all__ = [
     "ARM_LABELS",
     "BOUNDS",
     "COMPETITORS",
-    "HPARAM_COLUMNS",
     "METHODS",
     "PROPOSED",
     "SET_LABELS",
@@ -215,7 +214,7 @@ def select_arm(
         _require(df, [name], "the table")
         sel &= np.isclose(df[name].to_numpy(np.float64), float(value))
     out = df.loc[sel]
-    hp = [c for c in HPARAM_COLUMNS if c in out.columns and c not in vary]
+    hp = [c for c in hparam_columns() if c in out.columns and c not in vary]
     if hp and len(out) and len(out[hp].drop_duplicates()) > 1:
         raise AnalysisError(
             f"rows of {method!r} (variant {variant!r}) hold several hyperparameter "
@@ -239,7 +238,7 @@ def object_gaps(runs: pd.DataFrame) -> pd.DataFrame:
     )
     if runs.empty:
         raise AnalysisError("runs.parquet has no rows")
-    hp = [c for c in HPARAM_COLUMNS if c in runs.columns]
+    hp = [c for c in hparam_columns() if c in runs.columns]
     if hp:
         n_cfg = runs.groupby(["object", "method", "variant"], sort=False)[hp].apply(
             lambda g: len(g.drop_duplicates())

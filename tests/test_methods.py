@@ -222,7 +222,12 @@ def test_registry_declarations():
         "eta",
     }
     # the result tables carry those columns, typed as the methods declare them
-    assert set(results.HPARAM_COLUMNS) == set(cols)
+    assert results.hparam_columns() == tuple(cols)
+    # in the order of the committed tables (LEGS's first, then TQL's)
+    assert tuple(cols) == ("s", "prior_offset", "delta", "gamma", "k", "n") + (
+        "epsilon",
+        "eta",
+    )
     assert results.integer_hparams() == {"k", "n"}
     # LEGS owns its pruning schedule: every n-th step, whatever the pose
     legs = methods.get("legs")

@@ -13,15 +13,14 @@ import numpy as np
 from legs_per_pose import METHOD
 
 from legs_jax import engine, keys, problem, synthetic
-from legs_jax import reference as ref
-from legs_jax.methods import conformance
+from legs_jax.methods import conformance, legs
 from legs_jax.methods.base import Config
 
 HP = dict(s=1.0, prior_offset=1.0, delta=0.05, gamma=0.3, k=20, n=10)
 H, R, OBJ = 400, 8, 7
 
 
-class _Replay(ref.Legs):
+class _Replay(legs.Reference):
     """The reference's LEGS, pruned at every n-th attempt of the pose itself
     (``own``) or at every n-th step (LEGS's own schedule)."""
 

@@ -376,7 +376,7 @@ def test_cli_runs_and_writes_schema(tmp_path, probs, fake_engine, capsys):
     d = out / "main"
     runs = pd.read_parquet(d / "runs.parquet")
     need = ["experiment", "set", "object", "method", "variant", "trial", "rollout"]
-    need += ["seed", *results.HPARAM_COLUMNS, "horizon", "final_gap"]
+    need += ["seed", *results.hparam_columns(), "horizon", "final_gap"]
     need += ["final_performance", "successes", "distinct_grasps", "replacements"]
     assert list(runs.columns) == need
     n_arms = len(experiments.get("main").ARMS)

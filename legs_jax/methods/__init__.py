@@ -138,13 +138,14 @@ def builtin(name: str) -> bool:
 
 
 def column_defaults() -> dict[str, float | int]:
-    """The hyperparameter columns every result row carries and the value each
-    holds for a method that does not have that hyperparameter: every
-    hyperparameter of this package's methods, with the default of the first
+    """The hyperparameter columns every result row carries, in their order, and
+    the value each holds for a method that does not have that hyperparameter:
+    every hyperparameter of this package's methods, those of :data:`DEFAULT`
+    first, then the others in registry order, with the default of the first
     method declaring it. (A user's method adds its own columns to its rows.)"""
     _load()
     out: dict[str, float | int] = {}
-    for name in _MODULES:
+    for name in (DEFAULT, *_MODULES):
         for hp, value in _REGISTRY[name].defaults().items():
             out.setdefault(hp, value)
     return out

@@ -15,7 +15,7 @@ import numpy as np
 
 from legs_jax import reference as ref
 from legs_jax.errors import ConfigError
-from legs_jax.methods import _slots
+from legs_jax.methods import _slots, legs_no_as
 from legs_jax.methods.base import (
     COUNT,
     PRIOR_RANGES,
@@ -56,6 +56,47 @@ def check(hp, num_grasps):
         )
 
 
+class Reference(legs_no_as.Reference):
+    """LEGS: Thompson sampling over an active set of k slots, pruned and refilled."""
+
+    def __init__(self, problem, trial, hp):
+        super().__init__(problem, trial, hp)
+        P, k = self.q.shape[0], hp["k"]
+        self.slots = np.full((P, k), -1)  # [P, k] grasp id per slot, -1 empty
+        self.queue: list[np.ndarray] = []  # per pose: refill order (descending q)
+        self.queue_next = np.zeros(P, int)  # per pose: next queue position
+        for s in range(P):
+            ranked = ref.rank_by_prior(self.q[s], self.valid[s])
+            self.slots[s, : min(k, ranked.size)] = ranked[:k]
+            self.queue.append(ranked[k:])
+        self.cand = np.zeros_like(self.valid)
+        for s in range(P):
+            self.cand[s, self.slots[s][self.slots[s] >= 0]] = True
+
+    def after_step(self, t: int, s: int) -> None:
+        if t % self.hp["n"] != 0:
+            return
+        removed = self._prune_set(s)
+        for j in range(self.slots.shape[1]):  # slot order
+            g = self.slots[s, j]
+            if g < 0 or not removed[g]:
+                continue
+            self.cand[s, g] = False
+            self.replacements += 1
+            self.removal_log.append((t, s, int(g)))
+            if self.queue_next[s] < self.queue[s].size:
+                new = self.queue[s][self.queue_next[s]]
+                self.queue_next[s] += 1
+                self.slots[s, j] = new
+                self.cand[s, new] = True  # its posterior is still the prior
+            else:
+                self.slots[s, j] = -1
+        self._dirty[s] = True
+
+    def active_slots(self, k: int) -> np.ndarray:
+        return np.where(self.visited[:, None], self.slots, -1)
+
+
 METHOD = Method(
     name="legs",
     description="LEGS: active set of k grasps, pruned and refilled",
@@ -75,6 +116,6 @@ METHOD = Method(
         short_label="LEGS",
         style=dict(color="#d62728", ls="-", lw=2.4),
         cost=lambda cfg: float(min(cfg.k, cfg.num_grasps)),
-        reference=ref.Legs,
+        reference=Reference,
     ),
 )

@@ -74,8 +74,16 @@ def _cache_arg(p: argparse.ArgumentParser) -> None:
     compile_cache_arg(p, "a restarted session skips compiling")
 
 
-def _hparams(items) -> dict:
+def _hparams(items, method: str) -> dict:
+    """``--hparam`` values by name: integers for those ``method`` declares
+    integer, floats for the others (the method checks names and ranges)."""
     out = {}
+    integer: set[str] = set()
+    if items:
+        from legs_jax import methods
+
+        ranges = methods.resolve(method).ranges
+        integer = {name for name, rng in ranges.items() if rng.integer}
     for item in items:
         name, sep, value = item.partition("=")
         if not sep:
@@ -84,7 +92,7 @@ def _hparams(items) -> dict:
             v = float(value)
         except ValueError:
             raise InputError(f"--hparam {name}: {value!r} is not a number") from None
-        out[name] = int(v) if name in ("k", "n") and v.is_integer() else v
+        out[name] = int(v) if name in integer and v.is_integer() else v
     return out
 
 
@@ -317,7 +325,7 @@ def _serve(args) -> int:
             session = Session.create(
                 args.dir,
                 args.method,
-                hparams=_hparams(args.hparam),
+                hparams=_hparams(args.hparam, args.method),
                 seed=args.seed,
                 max_poses=args.max_poses,
                 reservoir_size=args.reservoir,
@@ -449,7 +457,7 @@ def _simulate(args) -> int:
         problem=pb,
         trial=args.trial,
         given_poses=args.given_poses,
-        hparams=_hparams(args.hparam),
+        hparams=_hparams(args.hparam, args.method),
         max_poses=args.max_poses,
         reservoir_size=args.reservoir,
         eval_every=args.eval_every,
