@@ -234,9 +234,9 @@ def save_figure(fig, path: Path) -> Path:
     return path
 
 
-def method_style(method: str, variant: str) -> dict[str, Any]:
+def method_style(method: str, variant: str, arms: an.Arms) -> dict[str, Any]:
     """The arm's declared line style (its method's, or its variant's)."""
-    style = an.arm_declaration(method, variant).get("style")
+    style = arms.declaration(method, variant).get("style")
     return dict(style or dict(color="#8c564b", ls="-", lw=1.4))
 
 
