@@ -48,6 +48,12 @@ __all__ = [
     "appendix_tables",
     "generate",
     "main",
+    "method_style",
+    "note_on_axes",
+    "pyplot",
+    "save_figure",
+    "set_label",
+    "write_csv",
 ]
 
 _PROG = "python -m legs_jax.figures"

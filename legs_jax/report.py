@@ -18,12 +18,18 @@ import experiments
 from legs_jax._files import atomic_write
 
 __all__ = [
+    "Appendix",
+    "Cell",
     "Num",
     "Table",
-    "Appendix",
     "appendix_section",
     "appendix_table",
     "build_report",
+    "fmt",
+    "horizon_text",
+    "paper_value",
+    "pct",
+    "tex_escape",
     "to_csv",
     "to_latex",
     "to_markdown",
