@@ -1,4 +1,4 @@
-"""Mesh -> problem file (SPEC §1, §6), the cache of built problems, and ``ensure``.
+"""Mesh -> problem file (SPEC §1, §6) and the cache of built problems.
 
 Pipeline of one object: load and repair the mesh (:mod:`.mesh`), stable poses and
 landing probabilities, topple matrix (:mod:`.poses`), then per pose: an Embree scene
@@ -57,7 +57,6 @@ __all__ = [
     "problem_path",
     "read_meta",
     "is_up_to_date",
-    "ensure",
 ]
 
 CODE_VERSION = "2"
@@ -506,7 +505,8 @@ def out_of_date(
     params: BuildParams | None = None,
 ) -> list:
     """The catalogue objects among ``names`` (object or set names) whose problem
-    file is missing or out of date: what :func:`ensure` would build."""
+    file is missing or out of date: what :func:`precompute.runner.ensure` would
+    build."""
     root = Path(data_dir) if data_dir is not None else None
     params = (params or BuildParams()).check()
     out = problems_dir(root, params.prior)
@@ -515,36 +515,3 @@ def out_of_date(
         for i in _catalog.resolve(list(names), root=root)
         if not is_up_to_date(problem_path(i, out), expected_hash(i, params))
     ]
-
-
-def ensure(
-    names: Sequence[str],
-    *,
-    data_dir: Path | None = None,
-    progress: bool = True,
-    jobs: int | None = None,
-    params: BuildParams | None = None,
-) -> dict[str, Path]:
-    """The problem file of each named object (object or set names), building the
-    missing or out-of-date ones. Files live in ``<data>/problems/<set>/<name>.npz``
-    (or the user cache when the data folder is read-only; a prior other than the
-    default in a subfolder, :func:`problems_dir`)."""
-    from .runner import build_many
-
-    root = Path(data_dir) if data_dir is not None else None
-    params = (params or BuildParams()).check()
-    out = problems_dir(root, params.prior)
-    paths = {
-        i.name: problem_path(i, out) for i in _catalog.resolve(list(names), root=root)
-    }
-    todo = out_of_date(names, data_dir=root, params=params)
-    todo = [i for i in todo if not reprior(problem_path(i, out), i, params)]
-    if todo:
-        build_many(
-            todo,
-            out=out,
-            params=params,
-            jobs=jobs if jobs is not None else min(len(todo), os.cpu_count() or 1),
-            progress=progress,
-        )
-    return paths

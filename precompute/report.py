@@ -346,7 +346,7 @@ def reliability_figure(counts: dict, priors: dict, path: Path) -> Path:
 
 # ------------------------------------------------------------------------- CLI
 def build_parser() -> argparse.ArgumentParser:
-    from .cli import subcommand_parser
+    from ._cli import subcommand_parser
 
     ap = subcommand_parser("report", __doc__)
     ap.add_argument(

@@ -23,7 +23,7 @@ from legs_jax import reference as ref
 from legs_jax.errors import ConfigError
 from legs_jax.methods import _slots, conformance
 from legs_jax.methods import legs as legs_method
-from legs_jax.methods.base import Config, Ctx, prune_mask
+from legs_jax.methods.base import Config, Ctx, check_declaration, prune_mask
 from legs_jax.problem import stack
 from legs_jax.synthetic import make_problem
 
@@ -207,7 +207,7 @@ def test_registry_declarations():
     for name in methods.names():
         m = methods.get(name)
         assert m.name == name
-        conformance.check_declaration(m)
+        check_declaration(m)
         assert m.card.label and m.card.short_label and m.card.style
     assert methods.get("legs").prune is not None
     assert methods.get("legs_no_as").prune is not None
@@ -273,7 +273,7 @@ def test_conformance_refuses_what_breaks_the_contract():
     with pytest.raises(ConfigError, match="not finite"):
         conformance.check(_broken(estimates=nan_estimates))
     with pytest.raises(ConfigError, match="NamedTuple"):
-        conformance.check_declaration(_broken(hparams=dict))
+        check_declaration(_broken(hparams=dict))
 
 
 def test_conformance_accepts_a_registered_method():

@@ -13,8 +13,8 @@ import numpy as np
 from legs_per_pose import METHOD
 
 from legs_jax import engine, keys, problem, synthetic
-from legs_jax.methods import conformance, legs
-from legs_jax.methods.base import Config
+from legs_jax.methods import legs
+from legs_jax.methods.base import Config, check_declaration
 
 HP = dict(s=1.0, prior_offset=1.0, delta=0.05, gamma=0.3, k=20, n=10)
 H, R, OBJ = 400, 8, 7
@@ -35,7 +35,7 @@ class _Replay(legs.Reference):
 
 
 def test_method_with_its_own_pruning_schedule_runs_unchanged():
-    conformance.check_declaration(METHOD)
+    check_declaration(METHOD)
     pb = synthetic.make_problem(seed=3, num_poses=3, num_grasps=120, num_trials=1)
     batch = problem.stack([pb])
     run = engine.run(

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from legs_jax.errors import ConfigError
-from legs_jax.methods.base import Method
+from legs_jax.methods.base import Method, check_declaration
 
 __all__ = [
     "DEFAULT",
@@ -98,7 +98,7 @@ def resolve(spec: str | Method) -> Method:
     """A method from its registered name, from ``module.path:ATTRIBUTE`` (a
     method in the user's own module, imported and registered under its name), or
     a :class:`Method` itself. A method from outside the registry is checked first
-    (:func:`legs_jax.methods.conformance.check_declaration`)."""
+    (:func:`legs_jax.methods.base.check_declaration`)."""
     if isinstance(spec, Method):
         return spec
     if not isinstance(spec, str):
@@ -120,9 +120,7 @@ def resolve(spec: str | Method) -> Method:
     method = getattr(mod, attr, None)
     if method is None:
         raise ConfigError(f"method '{spec}': {module} has no attribute {attr}")
-    from legs_jax.methods import conformance
-
-    conformance.check_declaration(method, where=spec)
+    check_declaration(method, where=spec)
     known = _REGISTRY.get(method.name)
     if known is not None and known is not method:
         raise ConfigError(

@@ -41,6 +41,7 @@ __all__ = [
     "Ctx",
     "Method",
     "Range",
+    "check_declaration",
     "check_prior",
     "every_n_steps",
     "Tables",
@@ -313,6 +314,63 @@ def _traced_type(hparams: type, static: tuple[str, ...]) -> type:
     if names == tuple(hparams._fields):
         return hparams
     return collections.namedtuple(f"{hparams.__name__}Traced", names)
+
+
+_FUNCTIONS = (
+    "init",
+    "select",
+    "update",
+    "recommend",
+    "recommend_init",
+    "estimates",
+    "candidates",
+)
+
+
+def check_declaration(method: Any, where: str = "") -> None:
+    """Refuse a malformed method declaration with a :class:`ConfigError`."""
+    at = f"method {where or getattr(method, 'name', method)!r}"
+    if not isinstance(method, Method):
+        raise ConfigError(
+            f"{at} is a {type(method).__name__}, not a legs_jax.methods.base.Method"
+        )
+    if not isinstance(method.name, str) or not method.name.isidentifier():
+        raise ConfigError(f"{at}: its name must be an identifier, got {method.name!r}")
+    for f in _FUNCTIONS:
+        if not callable(getattr(method, f)):
+            raise ConfigError(f"{at}: {f} is not callable")
+    if not isinstance(method.card, Card):
+        raise ConfigError(f"{at}: card must be a legs_jax.methods.base.Card")
+    optional = ("prune", "prune_due", "active_set", "recommend_updated", "check")
+    for f, v in [(f, getattr(method, f)) for f in optional] + [
+        ("card.reference", method.card.reference)
+    ]:
+        if v is not None and not callable(v):
+            raise ConfigError(f"{at}: {f} must be callable or None")
+    if method.prune is not None and method.prune_due is None:
+        raise ConfigError(f"{at}: prune needs prune_due, its schedule")
+    if not callable(method.active_width):
+        raise ConfigError(f"{at}: active_width is not callable")
+    hp = method.hparams
+    fields = getattr(hp, "_fields", None)
+    if not isinstance(hp, type) or fields is None:
+        raise ConfigError(f"{at}: hparams must be a NamedTuple class")
+    missing = [n for n in fields if n not in hp._field_defaults]
+    if missing:
+        raise ConfigError(f"{at}: hyperparameter(s) without a default: {missing}")
+    for n in list(method.ranges) + list(method.static):
+        if n not in fields:
+            raise ConfigError(f"{at}: {n} is not a field of {hp.__name__}")
+    for n, v in hp._field_defaults.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ConfigError(f"{at}: the default of {n} must be a number, got {v!r}")
+        rng = method.ranges.get(n)
+        if not math.isfinite(v) or (rng is not None and not rng.contains(v)):
+            raise ConfigError(f"{at}: the default {n} = {v!r} is outside its range")
+    for n in method.static:
+        rng = method.ranges.get(n)
+        if rng is None or not rng.integer:
+            raise ConfigError(f"{at}: static {n} needs an integer range")
 
 
 # ----------------------------------------------------------------------- helpers
