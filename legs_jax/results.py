@@ -27,7 +27,7 @@ float64; k, n as int64; ``variant`` is "" for the default configuration):
   <hyperparameters>, step, p_lower (p-hat* over all candidates, the paper's bound),
   p_lower_attempted (over attempted grasps only), p_lower_eb (our bound, the
   Dirichlet bound on an empirical-Bayes posterior of the recommended grasps,
-  legs_jax.stopping; NaN for methods without per-grasp counts),
+  legs_jax.core.stopping; NaN for methods without per-grasp counts),
   true_performance.
 - active_set: object, method, variant, grid_index, trial, rollout, step, pose,
   slot, grasp, robustness (filled slots of visited poses only).
@@ -84,8 +84,8 @@ __all__ = [
 def hparam_columns() -> tuple[str, ...]:
     """The hyperparameter columns, in this order, of every table that carries
     them: those this package's methods declare
-    (:func:`legs_jax.methods.column_defaults`)."""
-    from legs_jax import methods
+    (:func:`legs_jax.core.methods.column_defaults`)."""
+    from legs_jax.core import methods
 
     return tuple(methods.column_defaults())
 
@@ -94,7 +94,7 @@ def hparam_columns() -> tuple[str, ...]:
 def integer_hparams() -> frozenset[str]:
     """The hyperparameters a method of this package declares integer (their
     columns are int64, the others float64)."""
-    from legs_jax import methods
+    from legs_jax.core import methods
 
     return frozenset(
         name

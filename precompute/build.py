@@ -161,12 +161,12 @@ def build_problem(
     on_poses: Callable[[int], None] | None = None,
     on_pose_done: Callable[[], None] | None = None,
 ):
-    """Build the :class:`legs_jax.problem.Problem` of one mesh.
+    """Build the :class:`legs_jax.core.problem.Problem` of one mesh.
 
     ``on_poses(P)`` is called once the number of poses is known and
     ``on_pose_done()`` after each pose (progress bars).
     """
-    from legs_jax.problem import Problem
+    from legs_jax.core.problem import Problem
 
     params = (params or BuildParams()).check()
     mesh = load_mesh(mesh_path, units, fit)
@@ -396,7 +396,7 @@ def reprior(path: Path, info, params: BuildParams) -> bool:
     poses again (seconds an object) and then only renders and scores."""
     import dataclasses as _dc
 
-    from legs_jax.problem import load, save
+    from legs_jax.core.problem import load, save
 
     from .mesh import file_sha256
 
@@ -475,7 +475,7 @@ def problem_path(info, out: Path) -> Path:
 def read_meta(path: Path) -> dict | None:
     """The meta dict of a problem file without loading its arrays (None if
     unreadable)."""
-    from legs_jax import problem as problem_mod  # the one reader of the format
+    from legs_jax.core import problem as problem_mod  # the one reader of the format
 
     try:
         return problem_mod.peek(path)["meta"]

@@ -17,7 +17,7 @@ __all__ = ["main", "set_gaps"]
 
 
 def _load(paths):
-    from legs_jax.problem import load
+    from legs_jax.core.problem import load
 
     return [load(p) for p in paths]
 

@@ -8,7 +8,7 @@ the reservoirs themselves of two objects). Results pinned to the files then coul
 only be checked on the processor that made them. So, as a benchmark usually does
 (and as the original BORGES code did with its problem data), the problems that the
 results are made from are shipped in the repository, in the compact encoding of
-:func:`legs_jax.problem.save_compact` (success counts, a 16-bit prior, the grasp
+:func:`legs_jax.core.problem.save_compact` (success counts, a 16-bit prior, the grasp
 geometry of trial 0 for the objects that figures draw), and the sweep runs on them
 by default (``--problem-source shipped``). ``python -m precompute`` still builds
 problems from the meshes, and ``python -m precompute compare`` says, array by
@@ -155,8 +155,8 @@ def pack(
     """Write the shipped set from built problem files (``problems_dir``: the
     default prior's folder, with ``prior-<kind>/`` beside for the others) and its
     ``MANIFEST.json``. Every object of every shipped set must be built."""
-    from legs_jax import problem as problem_mod
     from legs_jax._files import git_state
+    from legs_jax.core import problem as problem_mod
 
     from .grasps import SAMPLES
     from .learned import default_prior
@@ -214,7 +214,7 @@ def compare_problems(built, shipped, geometry_trials: int) -> dict[str, str]:
 
     q is compared after the 16-bit quantisation the shipped set applies; grasp
     geometry only over the trials the shipped file holds."""
-    from legs_jax import problem as problem_mod
+    from legs_jax.core import problem as problem_mod
 
     diff: dict[str, str] = {}
     # q as the shipped encoding holds it
@@ -252,7 +252,7 @@ def compare(
     """Object -> {array: difference} between the built files in ``problems_dir``
     and the shipped set ({} when every array is equal; a string when the built
     file is absent)."""
-    from legs_jax import problem as problem_mod
+    from legs_jax.core import problem as problem_mod
 
     shipped = paths(names, prior, data_dir=data_dir)
     out: dict[str, dict[str, str] | str] = {}

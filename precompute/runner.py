@@ -75,7 +75,7 @@ def ensure(
 
 
 def _run_one(task: Task, params, messages=None) -> tuple[str, float, int]:
-    from legs_jax.problem import save
+    from legs_jax.core.problem import save
 
     from .build import build_problem
 

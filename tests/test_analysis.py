@@ -1,4 +1,4 @@
-"""Numbers of the tables and figures (legs_jax.analysis), checked against
+"""Numbers of the tables and figures (legs_jax.report.analysis), checked against
 aggregates computed here independently, and against small hand-made cases."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from results_fixture import make_results
 
 import experiments
 from experiments.main.analysis import ARMS
-from legs_jax import analysis as an
+from legs_jax.report import analysis as an
 
 
 @pytest.fixture(scope="module")

@@ -18,13 +18,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from legs_jax import engine, keys, methods, results
-from legs_jax import reference as ref
+from legs_jax import results
+from legs_jax.core import engine, keys, methods
+from legs_jax.core import reference as ref
+from legs_jax.core.methods import _slots, conformance
+from legs_jax.core.methods import legs as legs_method
+from legs_jax.core.methods.base import Config, Ctx, check_declaration, prune_mask
+from legs_jax.core.problem import stack
 from legs_jax.errors import ConfigError
-from legs_jax.methods import _slots, conformance
-from legs_jax.methods import legs as legs_method
-from legs_jax.methods.base import Config, Ctx, check_declaration, prune_mask
-from legs_jax.problem import stack
 from legs_jax.synthetic import make_problem
 
 H = 300

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 from helpers import catalog_problem
 
-from legs_jax import problem as problem_mod
+from legs_jax.core import problem as problem_mod
 
 ROOT = Path(__file__).resolve().parents[1]
 _CACHE = Path()  # a compilation cache shared by the runs of this module

@@ -15,7 +15,7 @@ import pytest
 import trimesh
 from helpers import catalog_problem
 
-from legs_jax import problem as problem_mod
+from legs_jax.core import problem as problem_mod
 from legs_jax.online import cli
 from legs_jax.online import simulate as sim_mod
 

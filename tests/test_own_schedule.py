@@ -12,9 +12,10 @@ import jax.numpy as jnp
 import numpy as np
 from legs_per_pose import METHOD
 
-from legs_jax import engine, keys, problem, synthetic
-from legs_jax.methods import legs
-from legs_jax.methods.base import Config, check_declaration
+from legs_jax import synthetic
+from legs_jax.core import engine, keys, problem
+from legs_jax.core.methods import legs
+from legs_jax.core.methods.base import Config, check_declaration
 
 HP = dict(s=1.0, prior_offset=1.0, delta=0.05, gamma=0.3, k=20, n=10)
 H, R, OBJ = 400, 8, 7

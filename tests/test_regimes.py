@@ -15,8 +15,9 @@ import pandas as pd
 import pytest
 
 import experiments
-from legs_jax import families, methods, problem, synthetic
-from legs_jax.figures import ObjectData, Results, Run
+from legs_jax import families, synthetic
+from legs_jax.core import methods, problem
+from legs_jax.report.figures import ObjectData, Results, Run
 from legs_jax.sweep import cli
 from legs_jax.sweep import experiments as planning
 from legs_jax.sweep.plan import SweepError

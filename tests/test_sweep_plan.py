@@ -22,10 +22,12 @@ import pytest
 import sweep_fakes
 
 import experiments
-from legs_jax import methods, problem, results, sweep, synthetic
-
 
 # ---------------------------------------------------------------------- helpers
+from legs_jax import results, sweep, synthetic
+from legs_jax.core import methods, problem
+
+
 @pytest.fixture(autouse=True)
 def _keep_xla_flags(monkeypatch):
     """main() asks for host devices through XLA_FLAGS: keep that in this test."""

@@ -13,8 +13,9 @@ import numpy as np
 
 from experiments.case_study.sweep import ACTIVE_SET_METHODS, OBJECTS
 from experiments.main.analysis import ARMS
-from legs_jax import analysis as an
-from legs_jax.figures import (
+from legs_jax.report import analysis as an
+from legs_jax.report.document import fmt, pct
+from legs_jax.report.figures import (
     MissingResults,
     ObjectData,
     Results,
@@ -25,7 +26,6 @@ from legs_jax.figures import (
     save_figure,
     set_label,
 )
-from legs_jax.report import fmt, pct
 
 
 def _case_study_lines(info: Mapping, main: Mapping | None) -> list[str]:
@@ -101,7 +101,7 @@ def _draw_object(
 ) -> dict[str, Any]:
     """Draw the object in a stable pose into ``ax``; returns what was drawn
     (``pose``, ``notes``). ``grasps(pb, pose, rendering, ax)`` draws on top."""
-    from legs_jax import render
+    from legs_jax.report import render
 
     ax.set_axis_off()
     info: dict[str, Any] = {"pose": pose, "notes": []}
@@ -410,7 +410,7 @@ def active_set_figure(
         ids = members.loc[members["step"] == step, "grasp"].to_numpy(int)
 
         def draw(pb, p, img, ax):
-            from legs_jax import render
+            from legs_jax.report import render
 
             valid = np.flatnonzero(pb.valid[0, p])
             rng = np.random.default_rng(0)

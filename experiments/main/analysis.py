@@ -17,9 +17,8 @@ import pandas as pd
 
 from experiments.early_stopping.analysis import PAPER_EARLY_STOPPING
 from experiments.main import sweep
-from legs_jax import analysis as an
-from legs_jax.figures import Results, Run, write_csv
-from legs_jax.report import (
+from legs_jax.report import analysis as an
+from legs_jax.report.document import (
     Cell,
     Num,
     Table,
@@ -29,6 +28,7 @@ from legs_jax.report import (
     to_markdown,
     write_pair,
 )
+from legs_jax.report.figures import Results, Run, write_csv
 
 # How Table I orders, labels and compares the arms (the main experiment's
 # declarations; the case study and the prior comparison show the same arms).

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from legs_jax.figures import Run, appendix_tables
-from legs_jax.report import Appendix, appendix_section
+from legs_jax.report.document import Appendix, appendix_section
+from legs_jax.report.figures import Run, appendix_tables
 
 # The appendix's table, LEGS on the bar clamp: s -> (mean, SE); delta = 0.07.
 SPEC = Appendix(

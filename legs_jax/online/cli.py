@@ -80,7 +80,7 @@ def _hparams(items, method: str) -> dict:
     out = {}
     integer: set[str] = set()
     if items:
-        from legs_jax import methods
+        from legs_jax.core import methods
 
         ranges = methods.resolve(method).ranges
         integer = {name for name, rng in ranges.items() if rng.integer}
@@ -191,7 +191,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         metavar="RHO_MIN",
         help="stop at the first curve point whose stopping bound (ours, "
-        "legs_jax.stopping) is at least RHO_MIN",
+        "legs_jax.core.stopping) is at least RHO_MIN",
     )
     quiet_arg(p)
     _session_args(p)
@@ -382,7 +382,7 @@ def _same_prior(session, prior: str | None) -> None:
 
 
 def _simulate(args) -> int:
-    from legs_jax import problem as problem_mod
+    from legs_jax.core import problem as problem_mod
     from legs_jax.online.robot import World
     from legs_jax.online.simulate import Simulation
     from precompute.errors import PrecomputeError

@@ -39,7 +39,7 @@ def _digests_of(path: str, sha256: str, shipped: bool) -> tuple[tuple[str, str],
         found = problemset.array_digests(Path(path))
         if found is not None:
             return tuple(sorted(found.items()))
-    from legs_jax import problem as problem_mod
+    from legs_jax.core import problem as problem_mod
 
     try:
         return tuple(sorted(problem_mod.array_digests(problem_mod.load(path)).items()))
@@ -499,7 +499,7 @@ def _grasps_table(plan: ExperimentPlan):
     """Ground truth and prior of trial 0's reservoir of each object (histograms)."""
     import pandas as pd
 
-    from legs_jax import problem as problem_mod
+    from legs_jax.core import problem as problem_mod
 
     frames = []
     for o in plan.objects:

@@ -4,19 +4,18 @@ q (SPEC §4).
 
 The active set of every pose is built at step 0 (it depends on nothing learned, so
 this equals building it on the first visit). The pruning step of one pose is
-:func:`legs_jax.methods._slots.prune_refill`, a pure function of the state;
-:func:`legs_jax.methods.base.prune_mask` is the removal set alone and
-:func:`legs_jax.methods.base.every_n_steps` LEGS's schedule of it.
+:func:`legs_jax.core.methods._slots.prune_refill`, a pure function of the state;
+:func:`legs_jax.core.methods.base.prune_mask` is the removal set alone and
+:func:`legs_jax.core.methods.base.every_n_steps` LEGS's schedule of it.
 """
 
 from typing import NamedTuple
 
 import numpy as np
 
-from legs_jax import reference as ref
-from legs_jax.errors import ConfigError
-from legs_jax.methods import _slots, legs_no_as
-from legs_jax.methods.base import (
+from legs_jax.core import reference as ref
+from legs_jax.core.methods import _slots, legs_no_as
+from legs_jax.core.methods.base import (
     COUNT,
     PRIOR_RANGES,
     UNIT_OPEN,
@@ -25,6 +24,7 @@ from legs_jax.methods.base import (
     check_prior,
     every_n_steps,
 )
+from legs_jax.errors import ConfigError
 
 __all__ = ["METHOD", "LegsHParams"]
 

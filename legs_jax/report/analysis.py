@@ -67,7 +67,7 @@ class Arms:
     @property
     def methods(self) -> tuple[str, ...]:
         """Every method in table order: ``order``, then the registry's others."""
-        from legs_jax import methods
+        from legs_jax.core import methods
 
         return tuple(self.order) + tuple(
             m for m in methods.names() if m not in self.order
@@ -79,7 +79,7 @@ class Arms:
         experiment declares, but not an oracle row (the K=100 upper bound);
         extra rows (Bayes-UCB, a user's method) are shown but do not compete, so
         the counts keep the paper's definition."""
-        from legs_jax import methods
+        from legs_jax.core import methods
 
         return tuple(
             m
@@ -91,9 +91,9 @@ class Arms:
 
     def declaration(self, method: str, variant: str = "") -> dict:
         """``label``, ``short_label`` and ``style`` of an arm: a declared
-        variant's, else its method's (:mod:`legs_jax.methods`); empty for an
+        variant's, else its method's (:mod:`legs_jax.core.methods`); empty for an
         unknown method."""
-        from legs_jax import methods
+        from legs_jax.core import methods
 
         if (method, variant) in self.variants:
             return dict(self.variants[(method, variant)])
@@ -134,7 +134,7 @@ SET_LABELS = {"dexnet_adv": "Dex-Net Adversarial", "egad_eval": "EGAD! evaluatio
 # Lower bounds of the stopping rule: name -> checks column. "all" is the paper's
 # formula (p-hat* over all candidates), "attempted" the variant over attempted
 # grasps only (SPEC §5), "ours" the Dirichlet bound on an empirical-Bayes posterior
-# of the recommended grasps (legs_jax.stopping).
+# of the recommended grasps (legs_jax.core.stopping).
 BOUNDS = {"all": "p_lower", "attempted": "p_lower_attempted", "ours": "p_lower_eb"}
 
 _RUN_KEYS = ["object", "trial", "rollout"]
@@ -150,7 +150,7 @@ PRIOR_WORDS = {
 
 def prior_kind(res: Any, experiment: str = "main") -> str:
     """The prior of an experiment's problems, from its manifest (``res``: a
-    :class:`legs_jax.figures.Results`): "learned", "synthetic", several joined
+    :class:`legs_jax.report.figures.Results`): "learned", "synthetic", several joined
     by "+", or "unknown" (results from before the manifests said)."""
     kinds = res.manifest(experiment).get("priors") or []
     return "+".join(kinds) if kinds else "unknown"
@@ -168,7 +168,7 @@ class AnalysisError(ValueError):
 # ------------------------------------------------------------------------ helpers
 def oracle_methods() -> tuple[str, ...]:
     """The registered methods that are oracle rows (never compared or bolded)."""
-    from legs_jax import methods
+    from legs_jax.core import methods
 
     return tuple(m for m in methods.names() if methods.get(m).card.oracle)
 

@@ -9,8 +9,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from legs_jax import reference as ref
-from legs_jax.methods.base import (
+from legs_jax.core import reference as ref
+from legs_jax.core.methods.base import (
     UNIT,
     Card,
     Config,

@@ -5,9 +5,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from legs_jax import reference as ref
-from legs_jax.methods import _dense
-from legs_jax.methods.base import (
+from legs_jax.core import reference as ref
+from legs_jax.core.methods import _dense
+from legs_jax.core.methods.base import (
     COUNT,
     PRIOR_RANGES,
     UNIT_OPEN,
@@ -30,7 +30,7 @@ class Reference(ref.BetaMethod):
 
     def _prune_set(self, s: int) -> np.ndarray:
         """[K] bool, the LEGS removal set of pose s
-        (:func:`legs_jax.reference.legs_prune`)."""
+        (:func:`legs_jax.core.reference.legs_prune`)."""
         hp = self.hp
         args = (self.alpha[s], self.beta[s], self.attempted[s], self.cand[s])
         return ref.legs_prune(*args, hp["delta"], hp["gamma"])

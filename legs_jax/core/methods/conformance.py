@@ -1,14 +1,14 @@
 """Conformance checks every method passes, ours and the user's.
 
-:func:`legs_jax.methods.base.check_declaration` looks at a
-:class:`~legs_jax.methods.base.Method` without running it (the functions are
+:func:`legs_jax.core.methods.base.check_declaration` looks at a
+:class:`~legs_jax.core.methods.base.Method` without running it (the functions are
 callables, the hyperparameters a NamedTuple with defaults inside their declared
 ranges, the static ones among them); :func:`check` runs it on a small synthetic
 problem with padded poses and grasps, invalid grasps and a pose without any valid
 grasp, under ``jit`` and under ``jit(vmap)`` over a grid of hyperparameters, and
 checks that one program serves new keys and values (it compiles once), that it never
 selects a masked grasp or one outside its own candidate set, and that its outputs
-are finite and its counters consistent. :func:`legs_jax.methods.resolve` runs the
+are finite and its counters consistent. :func:`legs_jax.core.methods.resolve` runs the
 first on a method from the user's module; the sweep runs both.
 """
 
@@ -19,8 +19,8 @@ import functools
 
 import numpy as np
 
+from legs_jax.core.methods.base import Method, check_declaration
 from legs_jax.errors import ConfigError
-from legs_jax.methods.base import Method, check_declaration
 
 __all__ = ["check"]
 
@@ -32,8 +32,8 @@ def _setup():
     import jax
     import jax.numpy as jnp
 
-    from legs_jax import engine
-    from legs_jax.problem import stack
+    from legs_jax.core import engine
+    from legs_jax.core.problem import stack
     from legs_jax.synthetic import make_problem
 
     pb = make_problem(
@@ -62,8 +62,8 @@ def check(method: Method, horizon: int = 120, rollouts: int = 8) -> None:
     import jax
     import jax.numpy as jnp
 
-    from legs_jax import engine, keys
-    from legs_jax.methods.base import Config
+    from legs_jax.core import engine, keys
+    from legs_jax.core.methods.base import Config
 
     check_declaration(method)
     tables = _setup()

@@ -2,7 +2,7 @@
 
 A method is a :class:`Method`: a few pure functions over its own state, each taking
 and returning arrays with an explicit leading batch axis B (one row per rollout).
-The engine (:mod:`legs_jax.engine`) owns the loop, the environment, the masks of
+The engine (:mod:`legs_jax.core.engine`) owns the loop, the environment, the masks of
 padding and empty poses, the metrics and the counters; a method only chooses,
 learns, prunes and recommends.
 
@@ -23,8 +23,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from legs_jax import sampling
-from legs_jax.constants import Q_CLIP, TOP_FIXED
+from legs_jax.core import sampling
+from legs_jax.core.constants import Q_CLIP, TOP_FIXED
 from legs_jax.errors import ConfigError
 
 __all__ = [
@@ -188,7 +188,7 @@ class Card:
     ``cost(cfg)`` is the number of candidate grasps a step touches (planning) and
     ``dense`` says its per-step work and state are O(K) (smaller batches suit it).
     ``reference`` (or None) ``(problem, trial, hp)`` builds its one-rollout NumPy
-    twin (:mod:`legs_jax.reference`). ``bench`` makes it a row of the benchmark's
+    twin (:mod:`legs_jax.core.reference`). ``bench`` makes it a row of the benchmark's
     table (``legs_jax.bench``, timed against its NumPy twin); ``bench_proxy`` names
     a method of that table with the same per-step work, whose measured rate
     stands in for this one's when the benchmark projects a sweep. ``prior_only``
@@ -248,7 +248,7 @@ class Method:
       [B, P, N] over the method's columns: successes and failures of the
       column's grasp, whether it enters the empirical-Bayes fit of our stopping
       bound (attempted), and its grasp id (-1 none). None: the method keeps no
-      per-grasp counts and our bound is NaN (:mod:`legs_jax.stopping`).
+      per-grasp counts and our bound is NaN (:mod:`legs_jax.core.stopping`).
     - ``candidates(state, ctx, cfg) -> [B, P, K]`` bool: the candidate set, dense
       (for tests and conformance checks; not used in the loop).
     - ``active_set`` (or None) ``(state, ctx, cfg) -> [B, P, k]`` grasp ids, -1 for
@@ -332,7 +332,8 @@ def check_declaration(method: Any, where: str = "") -> None:
     at = f"method {where or getattr(method, 'name', method)!r}"
     if not isinstance(method, Method):
         raise ConfigError(
-            f"{at} is a {type(method).__name__}, not a legs_jax.methods.base.Method"
+            f"{at} is a {type(method).__name__}, not a "
+            "legs_jax.core.methods.base.Method"
         )
     if not isinstance(method.name, str) or not method.name.isidentifier():
         raise ConfigError(f"{at}: its name must be an identifier, got {method.name!r}")
@@ -340,7 +341,7 @@ def check_declaration(method: Any, where: str = "") -> None:
         if not callable(getattr(method, f)):
             raise ConfigError(f"{at}: {f} is not callable")
     if not isinstance(method.card, Card):
-        raise ConfigError(f"{at}: card must be a legs_jax.methods.base.Card")
+        raise ConfigError(f"{at}: card must be a legs_jax.core.methods.base.Card")
     optional = ("prune", "prune_due", "active_set", "recommend_updated", "check")
     for f, v in [(f, getattr(method, f)) for f in optional] + [
         ("card.reference", method.card.reference)
@@ -383,7 +384,7 @@ def every_n_steps(state: Any, ctx: Ctx, cfg: Config, s: jax.Array, t) -> jax.Arr
 
 
 #: Index of the maximum along an axis, the lowest one on ties (as np.argmax):
-#: :func:`legs_jax.sampling.argmax_first`, faster than ``jnp.argmax`` on CPU.
+#: :func:`legs_jax.core.sampling.argmax_first`, faster than ``jnp.argmax`` on CPU.
 argmax_first = sampling.argmax_first
 
 

@@ -80,13 +80,13 @@ Dirichlet stopping check (SPEC §5).
   interpolation (``np.quantile``); both variants use the same samples.
 
 Methods.
-  Each method (:mod:`legs_jax.methods`) names its NumPy twin in its declaration
+  Each method (:mod:`legs_jax.core.methods`) names its NumPy twin in its declaration
   (``Method.card.reference``, one of the classes below or the user's own); this
   module's loop, environment and checks are shared by all of them.
 
 Validation.
   :func:`check_hparams` applies the method's own declaration, as the engine does
-  (:func:`legs_jax.methods.parse_grid`): an unknown method or hyperparameter, a
+  (:func:`legs_jax.core.methods.parse_grid`): an unknown method or hyperparameter, a
   value outside its declared range, s = prior_offset = 0, and k > K for LEGS raise
   :class:`legs_jax.errors.ConfigError`. BORGES (K=100) and the K100 upper bound
   always use the top 100 (or every valid grasp when a pose has fewer).
@@ -100,10 +100,10 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from legs_jax.constants import DELTA_STOP, NUM_DIRICHLET_SAMPLES, Q_CLIP
+from legs_jax.core.constants import DELTA_STOP, NUM_DIRICHLET_SAMPLES, Q_CLIP
+from legs_jax.core.methods.base import Config
+from legs_jax.core.problem import Problem
 from legs_jax.errors import ConfigError
-from legs_jax.methods.base import Config
-from legs_jax.problem import Problem
 
 __all__ = [
     "DELTA_STOP",
@@ -154,11 +154,11 @@ def check_hparams(
     problem: Problem, method: Any, hparams: Mapping[str, Any] | None = None
 ) -> dict[str, float | int]:
     """Complete ``hparams`` with the method's defaults and validate them (the
-    engine's rules, :func:`legs_jax.methods.parse_grid`), one value each.
+    engine's rules, :func:`legs_jax.core.methods.parse_grid`), one value each.
 
     Raises :class:`ConfigError` with a one-line message (see the module docstring).
     """
-    from legs_jax import methods
+    from legs_jax.core import methods
 
     m = methods.resolve(method)
     for name, value in (hparams or {}).items():
@@ -175,7 +175,9 @@ def _check_run_args(
     problem: Problem, horizon: int, record_every: int, check_every: int
 ) -> None:
     if not isinstance(problem, Problem):
-        raise ConfigError(f"expected a legs_jax.problem.Problem, got {type(problem)}")
+        raise ConfigError(
+            f"expected a legs_jax.core.problem.Problem, got {type(problem)}"
+        )
     for name, value in (
         ("horizon", horizon),
         ("record_every", record_every),
@@ -258,7 +260,7 @@ def top_truth_choice(problem: Problem, trial: int, size: int) -> np.ndarray:
 
 def constant_policy(problem: Problem, method: Any, trial: int) -> np.ndarray:
     """[P] fixed grasp per pose of a constant row (a method that does not learn)."""
-    from legs_jax import methods
+    from legs_jax.core import methods
 
     m = methods.resolve(method)
     twin = m.card.reference(problem, trial, m.defaults()) if m.card.reference else None
@@ -647,7 +649,7 @@ def run_rollout(
 def _method(method: Any):
     """The registered method (a name, ``module:ATTRIBUTE`` or a Method) that has
     a NumPy twin."""
-    from legs_jax import methods
+    from legs_jax.core import methods
 
     m = methods.resolve(method)
     if m.card.reference is None:
