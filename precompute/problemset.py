@@ -294,13 +294,12 @@ def _names(a) -> list[str]:
 
 def main_compare(argv: Sequence[str]) -> int:
     """``python -m precompute compare``."""
-    import argparse
-
+    from ._cli import subcommand_parser
     from .build import problems_dir
 
-    ap = argparse.ArgumentParser(
-        prog="python -m precompute compare",
-        description="Compare problem files built from the meshes on this machine "
+    ap = subcommand_parser(
+        "compare",
+        "Compare problem files built from the meshes on this machine "
         "(python -m precompute --all) with the shipped problem set "
         "(data/problemset), array by array: which arrays differ, in how many "
         "entries and by how much. The sweep runs on the shipped set unless told "
@@ -309,9 +308,6 @@ def main_compare(argv: Sequence[str]) -> int:
     ap.add_argument("--set", dest="set_name", choices=_catalog.SETS)
     ap.add_argument("--object", nargs="+", metavar="NAME")
     ap.add_argument("--prior", choices=sorted(SHIPPED), default="learned")
-    ap.add_argument(
-        "--problems", type=Path, help="built problems (default: data/problems)"
-    )
     a = ap.parse_args(list(argv))
     folder = a.problems if a.problems is not None else problems_dir(prior=a.prior)
     names = _names(a)
@@ -324,20 +320,16 @@ def main_compare(argv: Sequence[str]) -> int:
 
 def main_ship(argv: Sequence[str]) -> int:
     """``python -m precompute ship``."""
-    import argparse
-
+    from ._cli import subcommand_parser
     from .build import problems_dir
 
-    ap = argparse.ArgumentParser(
-        prog="python -m precompute ship",
-        description="Write the shipped problem set (data/problemset, its "
+    ap = subcommand_parser(
+        "ship",
+        "Write the shipped problem set (data/problemset, its "
         "MANIFEST.json) from the built problem files of every catalogue object "
         "(learned prior) and of the Dex-Net objects (synthetic prior). For the "
         "maintainers: the committed results are made from the shipped set, so "
         "shipping a new one means running the sweep again.",
-    )
-    ap.add_argument(
-        "--problems", type=Path, help="built problems (default: data/problems)"
     )
     ap.add_argument("--quiet", action="store_true")
     a = ap.parse_args(list(argv))

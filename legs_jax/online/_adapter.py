@@ -161,26 +161,11 @@ def _programs(method: str, cfg: Config):
         post = stopping.eb_posterior(succ, fail, fit, hit, forgotten)
         draws = stopping.draw_values(key, post, engine.NUM_DIRICHLET_SAMPLES)
         values = jnp.zeros(counts.shape[:1] + (1,) + counts.shape[1:], jnp.float32)
-        lo = engine.dirichlet_quantiles(
-            key,
-            counts,
-            observed,
-            values,
-            engine.DELTA_STOP,
-            engine.NUM_DIRICHLET_SAMPLES,
-            draws=draws,
-        )
-        return lo[:, -1]
+        return bound(key, counts, observed, values, draws)[:, -1]
 
-    def bound(key, counts, observed, values):
-        return engine.dirichlet_quantiles(
-            key,
-            counts,
-            observed,
-            values,
-            engine.DELTA_STOP,
-            engine.NUM_DIRICHLET_SAMPLES,
-        )
+    def bound(key, counts, observed, values, draws=None):
+        """The Dirichlet bound (δ = DELTA_STOP, NUM_DIRICHLET_SAMPLES samples)."""
+        return engine.dirichlet_quantiles(key, counts, observed, values, draws=draws)
 
     return dict(
         init=jax.jit(init),

@@ -30,7 +30,7 @@ import argparse
 import dataclasses
 import json
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +45,7 @@ __all__ = [
     "ObjectData",
     "Results",
     "Run",
+    "appendix_step",
     "appendix_tables",
     "generate",
     "main",
@@ -315,6 +316,34 @@ class Run:
     written: list[Path]
     options: dict[str, Any]
 
+    @classmethod
+    def start(
+        cls, results: str | Path, out: str | Path, data: str | Path, **options: Any
+    ) -> Run:
+        """A run that reads ``results`` and the objects under ``data`` and writes
+        into ``out/tables`` and ``out/figures``; nothing written yet."""
+        res, out = Results(results), Path(out)
+        return cls(
+            res=res,
+            objects=ObjectData(data, res),
+            tables=out / "tables",
+            figures=out / "figures",
+            ctx={"results": res, "out": out},
+            written=[],
+            options=dict(options),
+        )
+
+
+def appendix_step(spec: rp.Appendix) -> Callable[[Run], None]:
+    """The step of an appendix experiment's analysis: its table
+    (:func:`appendix_tables`), kept in the report's context under its name."""
+
+    def step(run: Run) -> None:
+        files, run.ctx[spec.experiment] = appendix_tables(run.res, run.tables, spec)
+        run.written.extend(files)
+
+    return step
+
 
 def generate(
     results: str | Path = "results",
@@ -349,14 +378,8 @@ def generate(
             "--results)"
         )
     out = Path(out) if out is not None else results
-    run = Run(
-        res=res,
-        objects=ObjectData(data, res),
-        tables=out / "tables",
-        figures=out / "figures",
-        ctx={"results": res, "out": out},
-        written=[],
-        options=dict(case_objects=case_objects, active_object=active_object),
+    run = Run.start(
+        results, out, data, case_objects=case_objects, active_object=active_object
     )
     problems: list[str] = []
     steps = []
