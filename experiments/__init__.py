@@ -14,7 +14,7 @@ hyperparameters; a sequence value is a grid that runs as one batch axis),
 ``python -m legs_jax.sweep`` runs them.
 
 ``analysis.py`` holds what the experiment makes from its results: ``STEPS``
-(label, function of a :class:`legs_jax.figures.Run`) that write its tables and
+(label, function of a :class:`legs_jax.report.figures.Run`) that write its tables and
 figures, and ``SECTIONS`` (position, function of the report's context) that write
 its parts of ``REPORT.md``. A new experiment is a new folder; nothing else changes.
 """

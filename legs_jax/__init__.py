@@ -1,6 +1,6 @@
 """legs_jax: exploratory grasping with LEGS and its baselines as batched JAX programs.
 
-The names below are imported lazily, so that ``legs_jax.problem`` (used by the
+The names below are imported lazily, so that ``legs_jax.core.problem`` (used by the
 precompute step) does not pull in JAX.
 """
 
@@ -24,14 +24,14 @@ __all__ = [
 
 _WHERE = {
     "ConfigError": "legs_jax.errors",
-    "Method": "legs_jax.methods.base",
-    "RunResult": "legs_jax.engine",
-    "run": "legs_jax.engine",
-    "Problem": "legs_jax.problem",
-    "ProblemBatch": "legs_jax.problem",
-    "load": "legs_jax.problem",
-    "save": "legs_jax.problem",
-    "stack": "legs_jax.problem",
+    "Method": "legs_jax.core.methods.base",
+    "RunResult": "legs_jax.core.engine",
+    "run": "legs_jax.core.engine",
+    "Problem": "legs_jax.core.problem",
+    "ProblemBatch": "legs_jax.core.problem",
+    "load": "legs_jax.core.problem",
+    "save": "legs_jax.core.problem",
+    "stack": "legs_jax.core.problem",
     "make_problem": "legs_jax.synthetic",
 }
 

@@ -8,11 +8,11 @@ Everything is measured in one run on this machine, after a warm-up, as the media
 of several repeats; compile time is reported apart.
 
 - Exact Beta samples per second: this project's sampler
-  (:func:`legs_jax.sampling.beta_rows`), ``jax.random.beta`` and NumPy's
+  (:func:`legs_jax.core.sampling.beta_rows`), ``jax.random.beta`` and NumPy's
   ``Generator.beta``, on the same posterior-like shapes.
 - Rollout steps per second of BORGES (K=2000), LEGS (k=100) and TQL: the JAX engine
-  (:func:`legs_jax.engine.run`) against the NumPy reference implementation
-  (:mod:`legs_jax.reference`) of the same method with the same settings, and the
+  (:func:`legs_jax.core.engine.run`) against the NumPy reference implementation
+  (:mod:`legs_jax.core.reference`) of the same method with the same settings, and the
   ratio.
 - The projected wall time of ``python -m legs_jax.sweep --all`` from those rates:
   in a full run with the problem files present, every method is timed again at
@@ -52,9 +52,9 @@ _DESCRIPTION = (
 
 
 def _all_methods() -> tuple[str, ...]:
-    """Every registered method (legs_jax.methods), in registry order (imported
+    """Every registered method (legs_jax.core.methods), in registry order (imported
     late: JAX must start after the device flags are set)."""
-    from legs_jax import methods
+    from legs_jax.core import methods
 
     return methods.names()
 
@@ -63,14 +63,14 @@ def table_methods() -> tuple[str, ...]:
     """Methods of the table (their declaration's ``bench``); the others get a rate
     in the full run (for the projection) or borrow the rate of their
     ``bench_proxy``, a method with the same per-step work."""
-    from legs_jax import methods
+    from legs_jax.core import methods
 
     return tuple(m for m in methods.names() if methods.get(m).card.bench)
 
 
 def proxy() -> dict[str, str]:
     """Method -> the table's method whose rate stands in for it (``bench_proxy``)."""
-    from legs_jax import methods
+    from legs_jax.core import methods
 
     out = {}
     for m in methods.names():
@@ -239,7 +239,7 @@ def bench_sampler(cfg: Settings, quiet: bool) -> dict[str, Any]:
     import jax
     import jax.numpy as jnp
 
-    from legs_jax import sampling
+    from legs_jax.core import sampling
 
     rows, arms = cfg.sampler_rows, cfg.sampler_arms
     a, b = _posterior_shapes(rows, arms)
@@ -263,7 +263,7 @@ def bench_sampler(cfg: Settings, quiet: bool) -> dict[str, Any]:
         out[f"{name}_compile_s"] = round(max(first - n / rate, 0.0), 2)
         return rate
 
-    _say("sampler: legs_jax.sampling.beta_rows", quiet)
+    _say("sampler: legs_jax.core.sampling.beta_rows", quiet)
     # XLA already spreads one device's large fusions over the cores, so rows split
     # over devices are not always faster: both are measured, the better one is the
     # machine's figure.
@@ -370,11 +370,11 @@ def _checked(method: str) -> bool:
 
 
 def bench_jax_engine(method: str, cfg: Settings, problem) -> dict[str, float]:
-    from legs_jax import engine
-    from legs_jax.problem import stack
+    from legs_jax.core import engine
+    from legs_jax.core.problem import stack
 
     batch = stack([problem])
-    from legs_jax import methods
+    from legs_jax.core import methods
 
     dense = methods.get(method).card.dense  # per-step work O(K): fewer rollouts
     total = cfg.rollouts_dense if dense else cfg.rollouts_sparse
@@ -407,7 +407,7 @@ def bench_jax_engine(method: str, cfg: Settings, problem) -> dict[str, float]:
 def _reference_rollouts(args) -> int:
     """Worker: run ``count`` reference rollouts; returns the steps done."""
     problem, method, horizon, trial, first, count = args
-    from legs_jax import reference
+    from legs_jax.core import reference
 
     reference.run(
         problem,
@@ -423,7 +423,7 @@ def _reference_rollouts(args) -> int:
 
 def bench_reference(method: str, cfg: Settings, problem) -> float:
     """NumPy reference steps per second, one process (one rollout at a time)."""
-    from legs_jax import reference
+    from legs_jax.core import reference
 
     horizon = cfg.reference_horizon
     rates = []
@@ -670,7 +670,8 @@ def format_table(r: dict[str, Any]) -> str:
         "",
         f"Exact Beta samples per second (shape {r['shape'][0]} x {r['shape'][1]}, "
         "posterior-like shapes)",
-        f"  legs_jax.sampling.beta_rows  {_fmt_rate(r['sampler_samples_per_s']):>9}/s"
+        "  legs_jax.core.sampling.beta_rows  "
+        f"{_fmt_rate(r['sampler_samples_per_s']):>9}/s"
         f"   (compile {r['sampler_compile_s']} s)",
     ]
     for key, label in (("one_device", "one device"), ("all_devices", "all devices")):

@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 from scipy import special
 
-from legs_jax.problem import Problem, _no_geometry
+from legs_jax.core.problem import Problem, _no_geometry
 
 __all__ = [
     "CALIBRATIONS",

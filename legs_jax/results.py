@@ -27,7 +27,7 @@ float64; k, n as int64; ``variant`` is "" for the default configuration):
   <hyperparameters>, step, p_lower (p-hat* over all candidates, the paper's bound),
   p_lower_attempted (over attempted grasps only), p_lower_eb (our bound, the
   Dirichlet bound on an empirical-Bayes posterior of the recommended grasps,
-  legs_jax.stopping; NaN for methods without per-grasp counts),
+  legs_jax.core.stopping; NaN for methods without per-grasp counts),
   true_performance.
 - active_set: object, method, variant, grid_index, trial, rollout, step, pose,
   slot, grasp, robustness (filled slots of visited poses only).
@@ -64,7 +64,7 @@ from legs_jax._files import atomic_write
 
 __all__ = [
     "CHUNK_META",
-    "HPARAM_COLUMNS",
+    "hparam_columns",
     "integer_hparams",
     "ChunkContext",
     "atomic_write_json",
@@ -79,16 +79,22 @@ __all__ = [
     "write_chunk",
 ]
 
-# Hyperparameter columns, in this order, on every table that carries them: those
-# of this package's methods (legs_jax.methods.column_defaults), LEGS's first.
-HPARAM_COLUMNS = ("s", "prior_offset", "delta", "gamma", "k", "n", "epsilon", "eta")
+
+@functools.cache
+def hparam_columns() -> tuple[str, ...]:
+    """The hyperparameter columns, in this order, of every table that carries
+    them: those this package's methods declare
+    (:func:`legs_jax.core.methods.column_defaults`)."""
+    from legs_jax.core import methods
+
+    return tuple(methods.column_defaults())
 
 
 @functools.cache
 def integer_hparams() -> frozenset[str]:
     """The hyperparameters a method of this package declares integer (their
     columns are int64, the others float64)."""
-    from legs_jax import methods
+    from legs_jax.core import methods
 
     return frozenset(
         name
@@ -155,7 +161,7 @@ class ChunkContext:
     Args:
       experiment: experiment name.
       method, variant: the arm.
-      grid: G full hyperparameter dicts (every key of ``HPARAM_COLUMNS``).
+      grid: G full hyperparameter dicts (every key of :func:`hparam_columns`).
       objects: O (name, set) pairs, in batch order.
       trials: T absolute trial indices, in batch order.
       rollouts: R absolute rollout indices.
@@ -194,7 +200,7 @@ class ChunkContext:
         self.record_active_set = record_active_set
         self.robustness = robustness
         for g in self.grid:
-            missing = [c for c in HPARAM_COLUMNS if c not in g]
+            missing = [c for c in hparam_columns() if c not in g]
             if missing:
                 raise ValueError(f"grid point lacks hyperparameters {missing}")
 
@@ -231,11 +237,11 @@ def _label_columns(ctx: ChunkContext, ix: dict[str, np.ndarray]) -> dict[str, An
 
 
 def _hparam_columns(ctx: ChunkContext, g: np.ndarray) -> dict[str, np.ndarray]:
-    """``HPARAM_COLUMNS``, then any other hyperparameter of the method (a user's
-    method's own, float64) in name order."""
-    extra = sorted(set(ctx.grid[0]) - set(HPARAM_COLUMNS))
+    """:func:`hparam_columns`, then any other hyperparameter of the method (a
+    user's method's own, float64) in name order."""
+    extra = sorted(set(ctx.grid[0]) - set(hparam_columns()))
     cols = {}
-    for c in (*HPARAM_COLUMNS, *extra):
+    for c in (*hparam_columns(), *extra):
         dtype = np.int64 if c in integer_hparams() else np.float64
         vals = np.array([gp[c] for gp in ctx.grid], dtype=dtype)
         cols[c] = vals[g]
@@ -244,10 +250,10 @@ def _hparam_columns(ctx: ChunkContext, g: np.ndarray) -> dict[str, np.ndarray]:
 
 def _with_extra(columns: Sequence[str], df: pd.DataFrame) -> list[str]:
     """``columns`` with the extra hyperparameter columns of ``df`` (those of a
-    user's method, :func:`_hparam_columns`) after ``HPARAM_COLUMNS``."""
-    known = {*_RUN_COLUMNS, *_CHECK_COLUMNS, *_INTERNAL_COLUMNS}
+    user's method, :func:`_hparam_columns`) after :func:`hparam_columns`."""
+    known = {*_run_columns(), *_check_columns(), *_INTERNAL_COLUMNS}
     extra = sorted(c for c in df.columns if c not in known)
-    at = list(columns).index(HPARAM_COLUMNS[-1]) + 1
+    at = list(columns).index(hparam_columns()[-1]) + 1
     return [*columns[:at], *extra, *columns[at:]]
 
 
@@ -497,12 +503,7 @@ def _pid_alive(pid: int) -> bool:
 
 # -------------------------------------------------------------------------- merge
 _ARM_COLUMNS = ["experiment", "set", "object", "method", "variant"]
-_RUN_COLUMNS = [
-    *_ARM_COLUMNS,
-    "trial",
-    "rollout",
-    "seed",
-    *HPARAM_COLUMNS,
+_RUN_RESULTS = [
     "horizon",
     "final_gap",
     "final_performance",
@@ -510,18 +511,25 @@ _RUN_COLUMNS = [
     "distinct_grasps",
     "replacements",
 ]
-_GROUP_COLUMNS = [*_ARM_COLUMNS, *HPARAM_COLUMNS]
-_CHECK_COLUMNS = [
-    *_ARM_COLUMNS,
-    "trial",
-    "rollout",
-    *HPARAM_COLUMNS,
+_CHECK_RESULTS = [
     "step",
     "p_lower",
     "p_lower_attempted",
     "p_lower_eb",
     "true_performance",
 ]
+
+
+def _run_columns() -> list[str]:
+    return [*_ARM_COLUMNS, "trial", "rollout", "seed", *hparam_columns(), *_RUN_RESULTS]
+
+
+def _group_columns() -> list[str]:
+    return [*_ARM_COLUMNS, *hparam_columns()]
+
+
+def _check_columns() -> list[str]:
+    return [*_ARM_COLUMNS, "trial", "rollout", *hparam_columns(), *_CHECK_RESULTS]
 
 
 # Columns of the chunk tables that the merged tables drop or keep elsewhere.
@@ -584,18 +592,18 @@ def merge_chunks(
     runs = order(pd.concat(parts["runs"], ignore_index=True), ["trial", "rollout"])
     curves = _aggregate_curves(runs, np.asarray(curve_steps or [], np.int64))
     out = {
-        "runs": runs[_with_extra(_RUN_COLUMNS, runs)].reset_index(drop=True),
+        "runs": runs[_with_extra(_run_columns(), runs)].reset_index(drop=True),
         "curves": curves,
     }
     if parts["checks"]:
         checks = order(
             pd.concat(parts["checks"], ignore_index=True), ["trial", "rollout", "step"]
         )
-        out["checks"] = checks[_with_extra(_CHECK_COLUMNS, checks)].reset_index(
+        out["checks"] = checks[_with_extra(_check_columns(), checks)].reset_index(
             drop=True
         )
     else:
-        out["checks"] = pd.DataFrame({c: [] for c in _CHECK_COLUMNS})
+        out["checks"] = pd.DataFrame({c: [] for c in _check_columns()})
     if parts["active_set"]:
         act = pd.concat(parts["active_set"], ignore_index=True)
         out["active_set"] = order(act, ["step", "pose", "slot"])
@@ -603,7 +611,7 @@ def merge_chunks(
 
 
 def _aggregate_curves(runs: pd.DataFrame, steps: np.ndarray) -> pd.DataFrame:
-    group = _with_extra(_GROUP_COLUMNS, runs)
+    group = _with_extra(_group_columns(), runs)
     columns = [*group, "step", "gap_mean", "gap_se", "n_runs"]
     if runs.empty:
         return pd.DataFrame({c: [] for c in columns})
@@ -634,6 +642,6 @@ def _aggregate_curves(runs: pd.DataFrame, steps: np.ndarray) -> pd.DataFrame:
         frame["n_runs"] = np.full(len(steps), n, np.int64)
         frames.append(frame)
     out = pd.concat(frames, ignore_index=True)
-    for c in HPARAM_COLUMNS:
+    for c in hparam_columns():
         out[c] = out[c].astype(np.int64 if c in integer_hparams() else np.float64)
     return out[columns]

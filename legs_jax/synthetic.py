@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from legs_jax.problem import Problem
+from legs_jax.core.problem import Problem
 
 __all__ = ["make_problem"]
 

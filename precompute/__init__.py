@@ -7,8 +7,9 @@ learned prior (``train-prior`` and ``--prior learned``).
 """
 
 from . import catalog
-from .build import CODE_VERSION, BuildParams, build_problem, ensure, out_of_date
+from .build import CODE_VERSION, BuildParams, build_problem, out_of_date
 from .errors import PrecomputeError
+from .runner import ensure
 
 __all__ = [
     "CODE_VERSION",

@@ -1,4 +1,4 @@
-"""Mesh -> problem file (SPEC §1, §6), the cache of built problems, and ``ensure``.
+"""Mesh -> problem file (SPEC §1, §6) and the cache of built problems.
 
 Pipeline of one object: load and repair the mesh (:mod:`.mesh`), stable poses and
 landing probabilities, topple matrix (:mod:`.poses`), then per pose: an Embree scene
@@ -57,7 +57,6 @@ __all__ = [
     "problem_path",
     "read_meta",
     "is_up_to_date",
-    "ensure",
 ]
 
 CODE_VERSION = "2"
@@ -162,12 +161,12 @@ def build_problem(
     on_poses: Callable[[int], None] | None = None,
     on_pose_done: Callable[[], None] | None = None,
 ):
-    """Build the :class:`legs_jax.problem.Problem` of one mesh.
+    """Build the :class:`legs_jax.core.problem.Problem` of one mesh.
 
     ``on_poses(P)`` is called once the number of poses is known and
     ``on_pose_done()`` after each pose (progress bars).
     """
-    from legs_jax.problem import Problem
+    from legs_jax.core.problem import Problem
 
     params = (params or BuildParams()).check()
     mesh = load_mesh(mesh_path, units, fit)
@@ -397,7 +396,7 @@ def reprior(path: Path, info, params: BuildParams) -> bool:
     poses again (seconds an object) and then only renders and scores."""
     import dataclasses as _dc
 
-    from legs_jax.problem import load, save
+    from legs_jax.core.problem import load, save
 
     from .mesh import file_sha256
 
@@ -476,7 +475,7 @@ def problem_path(info, out: Path) -> Path:
 def read_meta(path: Path) -> dict | None:
     """The meta dict of a problem file without loading its arrays (None if
     unreadable)."""
-    from legs_jax import problem as problem_mod  # the one reader of the format
+    from legs_jax.core import problem as problem_mod  # the one reader of the format
 
     try:
         return problem_mod.peek(path)["meta"]
@@ -506,7 +505,8 @@ def out_of_date(
     params: BuildParams | None = None,
 ) -> list:
     """The catalogue objects among ``names`` (object or set names) whose problem
-    file is missing or out of date: what :func:`ensure` would build."""
+    file is missing or out of date: what :func:`precompute.runner.ensure` would
+    build."""
     root = Path(data_dir) if data_dir is not None else None
     params = (params or BuildParams()).check()
     out = problems_dir(root, params.prior)
@@ -515,36 +515,3 @@ def out_of_date(
         for i in _catalog.resolve(list(names), root=root)
         if not is_up_to_date(problem_path(i, out), expected_hash(i, params))
     ]
-
-
-def ensure(
-    names: Sequence[str],
-    *,
-    data_dir: Path | None = None,
-    progress: bool = True,
-    jobs: int | None = None,
-    params: BuildParams | None = None,
-) -> dict[str, Path]:
-    """The problem file of each named object (object or set names), building the
-    missing or out-of-date ones. Files live in ``<data>/problems/<set>/<name>.npz``
-    (or the user cache when the data folder is read-only; a prior other than the
-    default in a subfolder, :func:`problems_dir`)."""
-    from .runner import build_many
-
-    root = Path(data_dir) if data_dir is not None else None
-    params = (params or BuildParams()).check()
-    out = problems_dir(root, params.prior)
-    paths = {
-        i.name: problem_path(i, out) for i in _catalog.resolve(list(names), root=root)
-    }
-    todo = out_of_date(names, data_dir=root, params=params)
-    todo = [i for i in todo if not reprior(problem_path(i, out), i, params)]
-    if todo:
-        build_many(
-            todo,
-            out=out,
-            params=params,
-            jobs=jobs if jobs is not None else min(len(todo), os.cpu_count() or 1),
-            progress=progress,
-        )
-    return paths

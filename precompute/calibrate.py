@@ -17,7 +17,7 @@ __all__ = ["main", "set_gaps"]
 
 
 def _load(paths):
-    from legs_jax.problem import load
+    from legs_jax.core.problem import load
 
     return [load(p) for p in paths]
 
@@ -64,9 +64,9 @@ def set_gaps(problems, noise: float, noises=None) -> dict[str, float]:
 def main(argv=None) -> int:
     from . import catalog
     from . import prior as _prior
+    from ._cli import subcommand_parser
     from .analysis import PAPER
     from .build import problem_path, problems_dir
-    from .cli import subcommand_parser
 
     ap = subcommand_parser("calibrate", __doc__)
     ap.add_argument(

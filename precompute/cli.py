@@ -41,20 +41,6 @@ Other commands:
 """
 
 
-def subcommand_parser(name: str, doc: str | None) -> argparse.ArgumentParser:
-    """The parser of ``python -m precompute NAME``: its module's ``doc`` as the
-    description, and ``--problems``."""
-    ap = argparse.ArgumentParser(
-        prog=f"python -m precompute {name}",
-        description=doc,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    ap.add_argument(
-        "--problems", type=Path, help="problem folder (default: data/problems)"
-    )
-    return ap
-
-
 def _build_parser() -> argparse.ArgumentParser:
     from .build import BuildParams
 

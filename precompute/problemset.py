@@ -8,7 +8,7 @@ the reservoirs themselves of two objects). Results pinned to the files then coul
 only be checked on the processor that made them. So, as a benchmark usually does
 (and as the original BORGES code did with its problem data), the problems that the
 results are made from are shipped in the repository, in the compact encoding of
-:func:`legs_jax.problem.save_compact` (success counts, a 16-bit prior, the grasp
+:func:`legs_jax.core.problem.save_compact` (success counts, a 16-bit prior, the grasp
 geometry of trial 0 for the objects that figures draw), and the sweep runs on them
 by default (``--problem-source shipped``). ``python -m precompute`` still builds
 problems from the meshes, and ``python -m precompute compare`` says, array by
@@ -155,8 +155,8 @@ def pack(
     """Write the shipped set from built problem files (``problems_dir``: the
     default prior's folder, with ``prior-<kind>/`` beside for the others) and its
     ``MANIFEST.json``. Every object of every shipped set must be built."""
-    from legs_jax import problem as problem_mod
     from legs_jax._files import git_state
+    from legs_jax.core import problem as problem_mod
 
     from .grasps import SAMPLES
     from .learned import default_prior
@@ -214,7 +214,7 @@ def compare_problems(built, shipped, geometry_trials: int) -> dict[str, str]:
 
     q is compared after the 16-bit quantisation the shipped set applies; grasp
     geometry only over the trials the shipped file holds."""
-    from legs_jax import problem as problem_mod
+    from legs_jax.core import problem as problem_mod
 
     diff: dict[str, str] = {}
     # q as the shipped encoding holds it
@@ -252,7 +252,7 @@ def compare(
     """Object -> {array: difference} between the built files in ``problems_dir``
     and the shipped set ({} when every array is equal; a string when the built
     file is absent)."""
-    from legs_jax import problem as problem_mod
+    from legs_jax.core import problem as problem_mod
 
     shipped = paths(names, prior, data_dir=data_dir)
     out: dict[str, dict[str, str] | str] = {}
@@ -294,13 +294,12 @@ def _names(a) -> list[str]:
 
 def main_compare(argv: Sequence[str]) -> int:
     """``python -m precompute compare``."""
-    import argparse
-
+    from ._cli import subcommand_parser
     from .build import problems_dir
 
-    ap = argparse.ArgumentParser(
-        prog="python -m precompute compare",
-        description="Compare problem files built from the meshes on this machine "
+    ap = subcommand_parser(
+        "compare",
+        "Compare problem files built from the meshes on this machine "
         "(python -m precompute --all) with the shipped problem set "
         "(data/problemset), array by array: which arrays differ, in how many "
         "entries and by how much. The sweep runs on the shipped set unless told "
@@ -309,9 +308,6 @@ def main_compare(argv: Sequence[str]) -> int:
     ap.add_argument("--set", dest="set_name", choices=_catalog.SETS)
     ap.add_argument("--object", nargs="+", metavar="NAME")
     ap.add_argument("--prior", choices=sorted(SHIPPED), default="learned")
-    ap.add_argument(
-        "--problems", type=Path, help="built problems (default: data/problems)"
-    )
     a = ap.parse_args(list(argv))
     folder = a.problems if a.problems is not None else problems_dir(prior=a.prior)
     names = _names(a)
@@ -324,20 +320,16 @@ def main_compare(argv: Sequence[str]) -> int:
 
 def main_ship(argv: Sequence[str]) -> int:
     """``python -m precompute ship``."""
-    import argparse
-
+    from ._cli import subcommand_parser
     from .build import problems_dir
 
-    ap = argparse.ArgumentParser(
-        prog="python -m precompute ship",
-        description="Write the shipped problem set (data/problemset, its "
+    ap = subcommand_parser(
+        "ship",
+        "Write the shipped problem set (data/problemset, its "
         "MANIFEST.json) from the built problem files of every catalogue object "
         "(learned prior) and of the Dex-Net objects (synthetic prior). For the "
         "maintainers: the committed results are made from the shipped set, so "
         "shipping a new one means running the sweep again.",
-    )
-    ap.add_argument(
-        "--problems", type=Path, help="built problems (default: data/problems)"
     )
     ap.add_argument("--quiet", action="store_true")
     a = ap.parse_args(list(argv))

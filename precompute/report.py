@@ -51,8 +51,8 @@ def _fmt_list(values, digits: int) -> str:
 
 
 def prior_kind(pb) -> str:
-    """The prior a problem file carries (:func:`legs_jax.problem.prior_kind`)."""
-    from legs_jax.problem import prior_kind as of_meta
+    """The prior a problem file carries (:func:`legs_jax.core.problem.prior_kind`)."""
+    from legs_jax.core.problem import prior_kind as of_meta
 
     return of_meta(pb.meta)
 
@@ -71,7 +71,7 @@ def roc_auc(score: np.ndarray, positive: np.ndarray) -> float:
 
 
 def object_row(pb, set_name: str) -> dict:
-    """Summary statistics of one problem (a :class:`legs_jax.problem.Problem`)."""
+    """Summary statistics of one problem (a :class:`legs_jax.core.problem.Problem`)."""
     from .analysis import prior_only_gaps, prior_only_rows
 
     P = int(pb.pose_valid.sum())
@@ -225,7 +225,7 @@ def pose_figure(pb, info, path: Path, panel: int = 150) -> Path:
     """The object in each stable pose with the best grasps of trial 0."""
     from matplotlib.collections import LineCollection
 
-    from legs_jax import render
+    from legs_jax.report import render
 
     plt = _plt()
     mesh = render.load_mesh(info.mesh_path)
@@ -346,7 +346,7 @@ def reliability_figure(counts: dict, priors: dict, path: Path) -> Path:
 
 # ------------------------------------------------------------------------- CLI
 def build_parser() -> argparse.ArgumentParser:
-    from .cli import subcommand_parser
+    from ._cli import subcommand_parser
 
     ap = subcommand_parser("report", __doc__)
     ap.add_argument(
@@ -368,7 +368,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from legs_jax.problem import ProblemFileError, load
+    from legs_jax.core.problem import ProblemFileError, load
 
     from . import catalog
     from .build import problem_path, problems_dir

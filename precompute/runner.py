@@ -1,4 +1,5 @@
-"""Building several problems, in parallel processes, with progress bars."""
+"""Building several problems, in parallel processes, with progress bars, and
+``ensure``: the problem files of named objects, built where missing or out of date."""
 
 from __future__ import annotations
 
@@ -7,11 +8,12 @@ import os
 import queue
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 from .errors import PrecomputeError
 
-__all__ = ["Task", "build_many", "run_tasks"]
+__all__ = ["Task", "build_many", "ensure", "run_tasks"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,8 +39,43 @@ def build_many(infos, *, out: Path, params, jobs: int = 1, progress: bool = True
     return run_tasks(tasks, params=params, jobs=jobs, progress=progress)
 
 
+def ensure(
+    names: Sequence[str],
+    *,
+    data_dir: Path | None = None,
+    progress: bool = True,
+    jobs: int | None = None,
+    params=None,
+) -> dict[str, Path]:
+    """The problem file of each named object (object or set names), building the
+    missing or out-of-date ones. Files live in ``<data>/problems/<set>/<name>.npz``
+    (or the user cache when the data folder is read-only; a prior other than the
+    default in a subfolder, :func:`precompute.build.problems_dir`); ``params`` a
+    :class:`precompute.build.BuildParams` (default: the defaults)."""
+    from . import catalog
+    from .build import BuildParams, out_of_date, problem_path, problems_dir, reprior
+
+    root = Path(data_dir) if data_dir is not None else None
+    params = (params or BuildParams()).check()
+    out = problems_dir(root, params.prior)
+    paths = {
+        i.name: problem_path(i, out) for i in catalog.resolve(list(names), root=root)
+    }
+    todo = out_of_date(names, data_dir=root, params=params)
+    todo = [i for i in todo if not reprior(problem_path(i, out), i, params)]
+    if todo:
+        build_many(
+            todo,
+            out=out,
+            params=params,
+            jobs=jobs if jobs is not None else min(len(todo), os.cpu_count() or 1),
+            progress=progress,
+        )
+    return paths
+
+
 def _run_one(task: Task, params, messages=None) -> tuple[str, float, int]:
-    from legs_jax.problem import save
+    from legs_jax.core.problem import save
 
     from .build import build_problem
 

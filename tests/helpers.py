@@ -39,3 +39,13 @@ def catalog_problem(name: str, **params):
     return build_problem(
         info.mesh_path, units=info.units, name=info.name, params=BuildParams(**params)
     )
+
+
+def small_clamp_file(folder: Path) -> Path:
+    """``folder/bar_clamp.npz``: a small bar_clamp problem (1 trial, 100 grasps a
+    pose, 20 samples), as the online sessions' tests read it."""
+    from legs_jax.core import problem
+
+    path = Path(folder) / "bar_clamp.npz"
+    problem.save(catalog_problem("bar_clamp", trials=1, grasps=100, samples=20), path)
+    return path

@@ -9,8 +9,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from legs_jax.methods import _slots, legs
-from legs_jax.methods.base import Card, gather_at
+from legs_jax.core.methods import _slots, legs
+from legs_jax.core.methods.base import Card, gather_at
 
 
 class State(NamedTuple):

@@ -27,9 +27,9 @@ import numpy as np
 import pandas as pd
 
 import experiments
-from legs_jax import problem as problem_mod
 from legs_jax import results as res
 from legs_jax import synthetic
+from legs_jax.core import problem as problem_mod
 from legs_jax.sweep.store import _grasps_table
 
 DEXNET = ("bar_clamp", "climbing_hold", "pawn", "turbine_housing")

@@ -1,4 +1,4 @@
-"""Numbers of the tables and figures (legs_jax.analysis), checked against
+"""Numbers of the tables and figures (legs_jax.report.analysis), checked against
 aggregates computed here independently, and against small hand-made cases."""
 
 from __future__ import annotations
@@ -11,7 +11,8 @@ import pytest
 from results_fixture import make_results
 
 import experiments
-from legs_jax import analysis as an
+from experiments.main.analysis import ARMS
+from legs_jax.report import analysis as an
 
 
 @pytest.fixture(scope="module")
@@ -41,7 +42,7 @@ def _plain_object_means(runs: pd.DataFrame) -> dict:
 
 
 def test_object_gaps_match_plain_means(main_runs):
-    gaps = an.object_gaps(main_runs)
+    gaps = an.object_gaps(main_runs, ARMS)
     plain = _plain_object_means(main_runs)
     assert len(gaps) == len(plain)
     for r in gaps.itertuples():
@@ -52,8 +53,8 @@ def test_object_gaps_match_plain_means(main_runs):
 
 
 def test_table_one_matches_plain_aggregation(main_runs):
-    gaps = an.object_gaps(main_runs)
-    t1 = an.table_one(gaps)
+    gaps = an.object_gaps(main_runs, ARMS)
+    t1 = an.table_one(gaps, ARMS)
     plain = _plain_object_means(main_runs)
     set_of = dict(zip(main_runs["object"], main_runs["set"], strict=True))
     per_set: dict = {}
@@ -87,7 +88,7 @@ def _gaps(rows):
 
 
 def _all_methods(set_, obj, values, variant_extra=None):
-    rows = [(set_, obj, m, "", values[m]) for m in an.METHODS if m in values]
+    rows = [(set_, obj, m, "", values[m]) for m in ARMS.methods if m in values]
     if variant_extra is not None:
         rows.append((set_, obj, "borges_2000", "orig_prior", variant_extra))
     return rows
@@ -108,13 +109,13 @@ def test_win_rule_tolerance_oracle_and_variants():
     # o4: TQL best by far.
     rows += _all_methods("egad_eval", "o4", {**base, "tql": 0.0})
     gaps = _gaps(rows)
-    w = an.winners(gaps).set_index("object")
+    w = an.winners(gaps, ARMS.competitors).set_index("object")
     assert w.loc["o1", "legs"] and w.loc["o1", "borges_2000"]
     assert not w.loc["o2", "legs"] and w.loc["o2", "borges_2000"]
     assert w.loc["o3", "legs"] and not w.loc["o3", "borges_2000"]
     assert w.loc["o4", "tql"] and not w.loc["o4", "legs"]
     assert "k100_ub" not in w.columns
-    wc = an.win_counts(gaps).set_index(["set", "method"])
+    wc = an.win_counts(gaps, ARMS.competitors).set_index(["set", "method"])
     assert wc.loc[("dexnet_adv", "legs"), "wins"] == 2
     assert wc.loc[("dexnet_adv", "legs"), "n_objects"] == 3
     assert wc.loc[("dexnet_adv", "borges_2000"), "wins"] == 2
@@ -129,7 +130,7 @@ def test_win_counts_skip_objects_missing_a_method():
     )  # fmt: skip
     rows = _all_methods("dexnet_adv", "full", base)
     rows += [r for r in _all_methods("dexnet_adv", "partial", base) if r[2] != "tql"]
-    wc = an.win_counts(_gaps(rows)).set_index(["set", "method"])
+    wc = an.win_counts(_gaps(rows), ARMS.competitors).set_index(["set", "method"])
     assert wc.loc[("dexnet_adv", "legs"), "n_objects"] == 1
     assert wc.loc[("dexnet_adv", "legs"), "n_total"] == 2
 
@@ -140,11 +141,11 @@ def test_win_counts_on_fixture_match_independent_rule(main_runs):
     expected: dict = {}
     for o in set_of:
         legs = plain[(o, "legs", "")][0]
-        others = [plain[(o, m, "")][0] for m in an.COMPETITORS if m != "legs"]
+        others = [plain[(o, m, "")][0] for m in ARMS.competitors if m != "legs"]
         expected[set_of[o]] = expected.get(set_of[o], 0) + int(
             all(legs <= x + 0.005 for x in others)
         )
-    wc = an.win_counts(an.object_gaps(main_runs))
+    wc = an.win_counts(an.object_gaps(main_runs, ARMS), ARMS.competitors)
     got = wc[wc["method"] == "legs"].set_index("set")["wins"].to_dict()
     assert got == expected
 
@@ -154,12 +155,12 @@ def test_object_gaps_refuses_mixed_hyperparameters(main_runs):
     sel = (runs["method"] == "legs") & (runs["trial"] == 0)
     runs.loc[sel, "delta"] = 0.1
     with pytest.raises(an.AnalysisError, match="several hyperparameter"):
-        an.object_gaps(runs)
+        an.object_gaps(runs, ARMS)
 
 
 def test_missing_column_is_named(main_runs):
     with pytest.raises(an.AnalysisError, match="final_gap"):
-        an.object_gaps(main_runs.drop(columns=["final_gap"]))
+        an.object_gaps(main_runs.drop(columns=["final_gap"]), ARMS)
 
 
 def _checks(rows):
@@ -242,7 +243,7 @@ def test_sweep_table_matches_groupby(results):
 def test_active_set_trace(results):
     act = pd.read_parquet(results / "case_study" / "active_set.parquet")
     grasps = pd.read_parquet(results / "case_study" / "grasps.parquet")
-    pose, members, summary = an.active_set_trace(act, "C3", grasps=grasps)
+    pose, members, summary = an.active_set_trace(act, "C3", "legs", grasps=grasps)
     # The pose whose active set changed most, among the poses present at half
     # the checks or more; ties: more checks, likelier landing, lower index.
     c3 = act[(act["object"] == "C3") & (act["trial"] == 0) & (act["rollout"] == 0)]
@@ -269,15 +270,15 @@ def test_active_set_trace(results):
     ].max()
     assert summary["p_star"].iloc[0] == pytest.approx(p_star)
     assert (summary["best"] <= p_star + 1e-12).all()
-    with pytest.raises(an.AnalysisError, match="no LEGS rows"):
-        an.active_set_trace(act, "no_such_object")
+    with pytest.raises(an.AnalysisError, match="no legs rows"):
+        an.active_set_trace(act, "no_such_object", "legs")
 
 
 def test_learning_curves_order_and_arms(results):
     curves = pd.read_parquet(results / "case_study" / "curves.parquet")
-    lc = an.learning_curves(curves, "F6")
+    lc = an.learning_curves(curves, "F6", ARMS)
     arms = list(dict.fromkeys(zip(lc["method"], lc["variant"], strict=True)))
-    assert [m for m, _ in arms] == [m for m in an.METHODS if m in set(curves.method)]
+    assert [m for m, _ in arms] == [m for m in ARMS.methods if m in set(curves.method)]
     assert len(arms) == len(experiments.get("case_study").ARMS)
     for _, g in lc.groupby(["method", "variant"]):
         assert np.all(np.diff(g["step"].to_numpy()) > 0)

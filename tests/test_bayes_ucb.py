@@ -13,9 +13,9 @@ import pytest
 from scipy import stats
 from test_reference import hand_problem
 
-from legs_jax import engine, methods
-from legs_jax.methods.base import Config, Ctx
-from legs_jax.problem import stack
+from legs_jax.core import engine, methods
+from legs_jax.core.methods.base import Config, Ctx
+from legs_jax.core.problem import stack
 from legs_jax.synthetic import make_problem
 
 B, P, K = 64, 3, 150
@@ -133,7 +133,7 @@ def test_few_quantiles_choose_as_the_dense_computation(monkeypatch, dense_from):
     dense float32 argmax over every arm (ties: lowest id) on every row, and the
     NumPy twin's dense float64 choice wherever the twin's top two quantiles are
     exactly equal or at least 1e-4 apart (the float32 quantile's tolerance)."""
-    from legs_jax.methods import bayes_ucb_2000 as ucb
+    from legs_jax.core.methods import bayes_ucb_2000 as ucb
 
     monkeypatch.setattr(ucb, "DENSE_FROM", dense_from)
     monkeypatch.setattr(ucb, "FEW", 16)  # several blocks a row
@@ -175,8 +175,8 @@ def test_only_a_dominated_untried_arm_can_part_from_the_dense_float32_argmax():
     equal and β larger) whose float32 quantile rounded to at least the dominant
     untried arm's: the exact quantile is monotone, its float32 value is not
     strictly so. With q on a grid (exact ties only) they never differ."""
-    from legs_jax import sampling
-    from legs_jax.methods import bayes_ucb_2000 as ucb
+    from legs_jax.core import sampling
+    from legs_jax.core.methods import bayes_ucb_2000 as ucb
 
     rng = np.random.default_rng(11)
     rows, k = 32, 150

@@ -11,7 +11,7 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 
 import pytest
 
-from legs_jax import figures
+from legs_jax.report import figures
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "results"

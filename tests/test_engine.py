@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from legs_jax import _programs, engine, keys
-from legs_jax import reference as ref
+from legs_jax.core import _programs, engine, keys
+from legs_jax.core import reference as ref
+from legs_jax.core.problem import Problem, stack
 from legs_jax.errors import ConfigError
-from legs_jax.problem import Problem, stack
 from legs_jax.synthetic import make_problem
 
 # ------------------------------------------------------------------- problems
@@ -152,8 +152,8 @@ def test_grid_is_a_batch_axis_and_compiles_once(hidden):
 _DEVICE_SCRIPT = textwrap.dedent(
     """
     import json, jax, numpy as np
-    from legs_jax import engine
-    from legs_jax.problem import stack
+    from legs_jax.core import engine
+    from legs_jax.core.problem import stack
     from legs_jax.synthetic import make_problem
     assert len(jax.devices()) == 4, jax.devices()
     batch = stack([make_problem(2, num_poses=3, num_grasps=60, num_trials=2)])
@@ -171,9 +171,9 @@ _DEVICE_SCRIPT = textwrap.dedent(
 _KEPT_SCRIPT = textwrap.dedent(
     """
     import json, sys, jax, numpy as np
-    from legs_jax import engine
+    from legs_jax.core import engine
     from legs_jax._jax_cache import compile_cache
-    from legs_jax.problem import stack
+    from legs_jax.core.problem import stack
     from legs_jax.synthetic import make_problem
     if sys.argv[1] != "off":
         compile_cache(sys.argv[1])
@@ -499,7 +499,7 @@ def test_dirichlet_bounds_do_not_depend_on_pose_padding():
     np.testing.assert_array_equal(plain, wide)
     assert np.all((plain > 0.0) & (plain < 1.0))
     # our bound: posteriors of the padded poses (uniform, no data) never count
-    from legs_jax import stopping
+    from legs_jax.core import stopping
 
     post = rng.dirichlet(np.ones(stopping.GRID), (B, P)).astype(np.float32)
     post_w = np.concatenate(

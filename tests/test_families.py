@@ -10,7 +10,7 @@ import pytest
 from scipy import stats
 
 from legs_jax import families as F
-from legs_jax.problem import Problem, _no_geometry
+from legs_jax.core.problem import Problem, _no_geometry
 
 SMALL = dict(num_poses=4, effective_poses=2.0, num_grasps=2000, num_trials=2)
 

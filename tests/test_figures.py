@@ -14,8 +14,8 @@ import pandas as pd
 import pytest
 from results_fixture import make_data, make_results
 
-from legs_jax import figures, render
-from legs_jax import report as rp
+from legs_jax.report import document as rp
+from legs_jax.report import figures, render
 
 TABLES = [
     "table1",

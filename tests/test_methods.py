@@ -18,13 +18,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from legs_jax import engine, keys, methods, results
-from legs_jax import reference as ref
+from legs_jax import results
+from legs_jax.core import engine, keys, methods
+from legs_jax.core import reference as ref
+from legs_jax.core.methods import _slots, conformance
+from legs_jax.core.methods import legs as legs_method
+from legs_jax.core.methods.base import Config, Ctx, check_declaration, prune_mask
+from legs_jax.core.problem import stack
 from legs_jax.errors import ConfigError
-from legs_jax.methods import _slots, conformance
-from legs_jax.methods import legs as legs_method
-from legs_jax.methods.base import Config, Ctx, prune_mask
-from legs_jax.problem import stack
 from legs_jax.synthetic import make_problem
 
 H = 300
@@ -207,7 +208,7 @@ def test_registry_declarations():
     for name in methods.names():
         m = methods.get(name)
         assert m.name == name
-        conformance.check_declaration(m)
+        check_declaration(m)
         assert m.card.label and m.card.short_label and m.card.style
     assert methods.get("legs").prune is not None
     assert methods.get("legs_no_as").prune is not None
@@ -222,7 +223,12 @@ def test_registry_declarations():
         "eta",
     }
     # the result tables carry those columns, typed as the methods declare them
-    assert set(results.HPARAM_COLUMNS) == set(cols)
+    assert results.hparam_columns() == tuple(cols)
+    # in the order of the committed tables (LEGS's first, then TQL's)
+    assert tuple(cols) == ("s", "prior_offset", "delta", "gamma", "k", "n") + (
+        "epsilon",
+        "eta",
+    )
     assert results.integer_hparams() == {"k", "n"}
     # LEGS owns its pruning schedule: every n-th step, whatever the pose
     legs = methods.get("legs")
@@ -268,7 +274,7 @@ def test_conformance_refuses_what_breaks_the_contract():
     with pytest.raises(ConfigError, match="not finite"):
         conformance.check(_broken(estimates=nan_estimates))
     with pytest.raises(ConfigError, match="NamedTuple"):
-        conformance.check_declaration(_broken(hparams=dict))
+        check_declaration(_broken(hparams=dict))
 
 
 def test_conformance_accepts_a_registered_method():

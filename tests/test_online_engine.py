@@ -11,11 +11,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from legs_jax import engine, keys
-from legs_jax import methods as methods_mod
-from legs_jax.methods.base import Config
+from legs_jax.core import engine, keys
+from legs_jax.core import methods as methods_mod
+from legs_jax.core.methods.base import Config
+from legs_jax.core.problem import stack
 from legs_jax.online._adapter import Loop, method_names
-from legs_jax.problem import stack
 from legs_jax.synthetic import make_problem
 
 H = 200

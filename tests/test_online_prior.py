@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from scipy.stats import rankdata, spearmanr
 
-from legs_jax import problem as problem_mod
+from legs_jax.core import problem as problem_mod
 from legs_jax.online import Intrinsics, Session, StateError, cli
 from legs_jax.online import sampler as S
 from legs_jax.online.robot import SimRobot, World

@@ -20,9 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import catalog_problem
-
-from legs_jax import problem as problem_mod
+from helpers import small_clamp_file
 
 ROOT = Path(__file__).resolve().parents[1]
 _CACHE = Path()  # a compilation cache shared by the runs of this module
@@ -37,10 +35,7 @@ def _compile_cache(tmp_path_factory):
 @pytest.fixture(scope="module")
 def clamp_problem(tmp_path_factory) -> Path:
     """A small bar_clamp problem (1 trial, 100 grasps a pose, 20 samples)."""
-    pb = catalog_problem("bar_clamp", trials=1, grasps=100, samples=20)
-    path = tmp_path_factory.mktemp("problem") / "bar_clamp.npz"
-    problem_mod.save(pb, path)
-    return path
+    return small_clamp_file(tmp_path_factory.mktemp("problem"))
 
 
 def _cmd(out: Path, steps: int, extra=()) -> list[str]:

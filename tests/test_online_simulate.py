@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-from helpers import catalog_problem
+from helpers import small_clamp_file
 
-from legs_jax import problem as problem_mod
+from legs_jax.core import problem as problem_mod
 from legs_jax.online import cli
 from legs_jax.online import simulate as sim_mod
 
@@ -24,10 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module")
 def clamp_problem(tmp_path_factory) -> Path:
-    pb = catalog_problem("bar_clamp", trials=1, grasps=100, samples=20)
-    path = tmp_path_factory.mktemp("problem") / "bar_clamp.npz"
-    problem_mod.save(pb, path)
-    return path
+    return small_clamp_file(tmp_path_factory.mktemp("problem"))
 
 
 def _curve(out: Path) -> list[dict]:

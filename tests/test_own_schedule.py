@@ -12,16 +12,16 @@ import jax.numpy as jnp
 import numpy as np
 from legs_per_pose import METHOD
 
-from legs_jax import engine, keys, problem, synthetic
-from legs_jax import reference as ref
-from legs_jax.methods import conformance
-from legs_jax.methods.base import Config
+from legs_jax import synthetic
+from legs_jax.core import engine, keys, problem
+from legs_jax.core.methods import legs
+from legs_jax.core.methods.base import Config, check_declaration
 
 HP = dict(s=1.0, prior_offset=1.0, delta=0.05, gamma=0.3, k=20, n=10)
 H, R, OBJ = 400, 8, 7
 
 
-class _Replay(ref.Legs):
+class _Replay(legs.Reference):
     """The reference's LEGS, pruned at every n-th attempt of the pose itself
     (``own``) or at every n-th step (LEGS's own schedule)."""
 
@@ -36,7 +36,7 @@ class _Replay(ref.Legs):
 
 
 def test_method_with_its_own_pruning_schedule_runs_unchanged():
-    conformance.check_declaration(METHOD)
+    check_declaration(METHOD)
     pb = synthetic.make_problem(seed=3, num_poses=3, num_grasps=120, num_trials=1)
     batch = problem.stack([pb])
     run = engine.run(

@@ -1,4 +1,4 @@
-"""Parity of the JAX engine with the NumPy reference (legs_jax.reference).
+"""Parity of the JAX engine with the NumPy reference (legs_jax.core.reference).
 
 The two draw their random numbers differently (JAX keys vs NumPy generators), so
 stochastic results are compared in distribution: 256 engine rollouts against 200
@@ -22,8 +22,8 @@ import pytest
 from scipy import stats
 from test_methods import CFG_KN, ODD, RUN, conformance_problem, own, shared_run
 
-from legs_jax import engine, methods
-from legs_jax import reference as ref
+from legs_jax.core import engine, methods
+from legs_jax.core import reference as ref
 
 ALPHA = 1e-3  # level of every two-sample test
 R_REF = 100  # reference rollouts per trial (2 trials: 200)

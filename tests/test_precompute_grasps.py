@@ -225,7 +225,7 @@ def _small():
 
 
 def test_build_is_byte_identical_and_seeded(tmp_path):
-    from legs_jax.problem import load, save
+    from legs_jax.core.problem import load, save
 
     info = precompute.catalog.lookup("bar_clamp")
 
@@ -347,7 +347,7 @@ def test_cli_help_and_clear_errors(tmp_path):
 
 
 def test_cli_builds_a_users_mesh_in_millimetres(tmp_path):
-    from legs_jax.problem import load
+    from legs_jax.core.problem import load
 
     mesh = tmp_path / "my_part.stl"
     trimesh.creation.box((30.0, 50.0, 20.0)).export(mesh)
@@ -371,7 +371,7 @@ def test_cli_builds_a_users_mesh_in_millimetres(tmp_path):
 
 
 def test_cli_fit_egad_scales_a_users_mesh(tmp_path):
-    from legs_jax.problem import load
+    from legs_jax.core.problem import load
 
     mesh = tmp_path / "blob.stl"
     trimesh.creation.box((100.0, 90.0, 70.0)).export(mesh)

@@ -11,7 +11,8 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 import numpy as np
 import pytest
 
-from legs_jax import problem, synthetic
+from legs_jax import synthetic
+from legs_jax.core import problem
 from precompute import report
 from precompute.cli import main as cli_main
 

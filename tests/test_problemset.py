@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from legs_jax import problem as pm
+from legs_jax.core import problem as pm
 from legs_jax.sweep import cli as sweep_cli
 from legs_jax.synthetic import make_problem
 

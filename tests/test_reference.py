@@ -1,4 +1,4 @@
-"""The NumPy reference (legs_jax.reference): hand-computable cases, the rules of
+"""The NumPy reference (legs_jax.core.reference): hand-computable cases, the rules of
 SPEC §2–§5, masks, determinism and validation."""
 
 from __future__ import annotations
@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from legs_jax import methods
-from legs_jax import reference as ref
+from legs_jax.core import methods
+from legs_jax.core import reference as ref
+from legs_jax.core.problem import Problem
 from legs_jax.errors import ConfigError
-from legs_jax.problem import Problem
 from legs_jax.synthetic import make_problem
 
 # Every registered method that learns and has a NumPy twin.

@@ -15,8 +15,9 @@ import pandas as pd
 import pytest
 
 import experiments
-from legs_jax import families, methods, problem, synthetic
-from legs_jax.figures import ObjectData, Results, Run
+from legs_jax import families, synthetic
+from legs_jax.core import methods, problem
+from legs_jax.report.figures import Run
 from legs_jax.sweep import cli
 from legs_jax.sweep import experiments as planning
 from legs_jax.sweep.plan import SweepError
@@ -147,17 +148,7 @@ def fixture_run(tmp_path) -> Run:
             i, num_poses=3, num_grasps=150, num_trials=2, name=o
         )
         problem.save(pb, data / "problems" / "dexnet_adv" / f"{o}.npz")
-    res = Results(root)
-    out = tmp_path / "out"
-    return Run(
-        res=res,
-        objects=ObjectData(data, res),
-        tables=out / "tables",
-        figures=out / "figures",
-        ctx={"results": res, "out": out},
-        written=[],
-        options={},
-    )
+    return Run.start(root, tmp_path / "out", data)
 
 
 def test_analysis_on_a_fixture_with_a_known_answer(fixture_run):

@@ -1,4 +1,4 @@
-"""Statistical and exactness tests of legs_jax.sampling.
+"""Statistical and exactness tests of legs_jax.core.sampling.
 
 Kolmogorov-Smirnov tests use fixed seeds, so they are deterministic; the stated
 significance level is the chance that an exact sampler would fail them with a fresh
@@ -15,7 +15,7 @@ import pytest
 import scipy.special
 import scipy.stats
 
-from legs_jax import engine, sampling
+from legs_jax.core import engine, sampling
 
 # (alpha, beta) pairs: alpha = 1, shapes below 1 (prior_offset = 0), posterior-like
 # shapes and large counts.

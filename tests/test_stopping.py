@@ -1,4 +1,4 @@
-"""Our stopping bound (legs_jax.stopping): the exact posterior pieces, and its
+"""Our stopping bound (legs_jax.core.stopping): the exact posterior pieces, and its
 coverage on synthetic problems where its model is true."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import jax
 import numpy as np
 from scipy import stats
 
-from legs_jax import engine, stopping
+from legs_jax.core import engine, stopping
 
 # ------------------------------------------------------------------ the pieces
 

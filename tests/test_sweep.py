@@ -26,7 +26,7 @@ from helpers import run_module
 
 import experiments
 
-pytest.importorskip("legs_jax.engine")
+pytest.importorskip("legs_jax.core.engine")
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -22,10 +22,12 @@ import pytest
 import sweep_fakes
 
 import experiments
-from legs_jax import methods, problem, results, sweep, synthetic
-
 
 # ---------------------------------------------------------------------- helpers
+from legs_jax import results, sweep, synthetic
+from legs_jax.core import methods, problem
+
+
 @pytest.fixture(autouse=True)
 def _keep_xla_flags(monkeypatch):
     """main() asks for host devices through XLA_FLAGS: keep that in this test."""
@@ -376,7 +378,7 @@ def test_cli_runs_and_writes_schema(tmp_path, probs, fake_engine, capsys):
     d = out / "main"
     runs = pd.read_parquet(d / "runs.parquet")
     need = ["experiment", "set", "object", "method", "variant", "trial", "rollout"]
-    need += ["seed", *results.HPARAM_COLUMNS, "horizon", "final_gap"]
+    need += ["seed", *results.hparam_columns(), "horizon", "final_gap"]
     need += ["final_performance", "successes", "distinct_grasps", "replacements"]
     assert list(runs.columns) == need
     n_arms = len(experiments.get("main").ARMS)

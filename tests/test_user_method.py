@@ -15,7 +15,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from legs_jax import engine, keys, problem, sweep, synthetic
+from legs_jax import sweep, synthetic
+from legs_jax.core import engine, keys, problem
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -88,7 +89,7 @@ def test_a_bad_user_method_is_refused_in_one_line(tmp_path, user_package, capsys
     problem.save(pb, path)
     base = ["--problems", str(path), "--trials", "1", "--out", str(tmp_path / "o")]
     for spec, says in [
-        ("my_pkg.broken:METHOD", "not a legs_jax.methods.base.Method"),
+        ("my_pkg.broken:METHOD", "not a legs_jax.core.methods.base.Method"),
         ("my_pkg.nowhere:METHOD", "cannot import my_pkg.nowhere"),
         ("my_pkg.my_method:NOPE", "has no attribute NOPE"),
     ]:

@@ -12,8 +12,10 @@ from typing import Any
 import numpy as np
 
 from experiments.case_study.sweep import ACTIVE_SET_METHODS, OBJECTS
-from legs_jax import analysis as an
-from legs_jax.figures import (
+from experiments.main.analysis import ARMS
+from legs_jax.report import analysis as an
+from legs_jax.report.document import fmt, pct
+from legs_jax.report.figures import (
     MissingResults,
     ObjectData,
     Results,
@@ -24,7 +26,6 @@ from legs_jax.figures import (
     save_figure,
     set_label,
 )
-from legs_jax.report import fmt, pct
 
 
 def _case_study_lines(info: Mapping, main: Mapping | None) -> list[str]:
@@ -45,17 +46,17 @@ def _case_study_lines(info: Mapping, main: Mapping | None) -> list[str]:
         legs_final = legs_area = None
         best_final = best_area = "—"
         if cs is not None and len(cs):
-            comp = cs[cs["method"].isin(an.COMPETITORS) & (cs["variant"] == "")]
-            legs = comp[comp["method"] == an.PROPOSED]
-            rest = comp[comp["method"] != an.PROPOSED]
+            comp = cs[cs["method"].isin(ARMS.competitors) & (cs["variant"] == "")]
+            legs = comp[comp["method"] == ARMS.proposed]
+            rest = comp[comp["method"] != ARMS.proposed]
             if len(legs):
                 legs_final = float(legs["final"].iloc[0])
                 legs_area = float(legs["area"].iloc[0])
             if len(rest):
                 f = rest.loc[rest["final"].idxmin()]
                 a = rest.loc[rest["area"].idxmin()]
-                best_final = f"{fmt(float(f['final']))} ({an.arm_label(f['method'])})"
-                best_area = f"{fmt(float(a['area']))} ({an.arm_label(a['method'])})"
+                best_final = f"{fmt(float(f['final']))} ({ARMS.label(f['method'])})"
+                best_area = f"{fmt(float(a['area']))} ({ARMS.label(a['method'])})"
         good = o.get("good_fraction")
         set_ = o.get("set", "")
         lines.append(
@@ -100,7 +101,7 @@ def _draw_object(
 ) -> dict[str, Any]:
     """Draw the object in a stable pose into ``ax``; returns what was drawn
     (``pose``, ``notes``). ``grasps(pb, pose, rendering, ax)`` draws on top."""
-    from legs_jax import render
+    from legs_jax.report import render
 
     ax.set_axis_off()
     info: dict[str, Any] = {"pose": pose, "notes": []}
@@ -310,17 +311,17 @@ def case_study_figure(
             obj_info.update(grasps=len(rob), good_fraction=float(np.mean(rob >= 0.5)))
         # --- learning curves
         ax2 = fig.add_subplot(gs[i, 2])
-        lc = an.learning_curves(curves, name)
+        lc = an.learning_curves(curves, name, ARMS)
         finals = {}
         for (m, v), g in lc.groupby(["method", "variant"], sort=False):
-            st = method_style(m, v)
+            st = method_style(m, v, ARMS)
             x = g["step"].to_numpy(float)
             y = g["gap_mean"].to_numpy(float)
             se = np.nan_to_num(g["gap_se"].to_numpy(float))
             (h,) = ax2.plot(x, y, color=st["color"], ls=st["ls"], lw=st["lw"])
             ax2.fill_between(x, y - se, y + se, color=st["color"], alpha=0.15, lw=0)
             handles[(m, v)] = h
-            finals[an.arm_label(m, v)] = float(y[-1])
+            finals[ARMS.label(m, v)] = float(y[-1])
             horizon = max(horizon or 0, int(x.max()))
         ax2.set_xlim(0, horizon)
         ax2.set_ylim(bottom=0)
@@ -331,10 +332,10 @@ def case_study_figure(
         obj_info["final_gap"] = finals
         obj_info["curves"] = an.curve_summary(lc)
         info["objects"][name] = obj_info
-    order = an.sort_arms(handles)
+    order = ARMS.sort(handles)
     fig.legend(
         [handles[a] for a in order],
-        [an.arm_label(*a) for a in order],
+        [ARMS.label(*a) for a in order],
         loc="upper center",
         ncol=min(4, len(order)),
         frameon=False,
@@ -373,7 +374,7 @@ def active_set_figure(
         res.table("case_study", "grasps") if res.has("case_study", "grasps") else None
     )
     if obj is None and len(act):
-        first = an.first_legs_rollout(act)
+        first = an.first_rollout(act, ACTIVE_SET_METHODS[0])
         changed = first.groupby(["object", "pose"], sort=False)["grasp"].nunique()
         obj = str(changed.groupby(level=0, sort=False).max().idxmax())
     if not (act["object"] == obj).any():
@@ -381,7 +382,9 @@ def active_set_figure(
         if not avail:
             raise MissingResults(f"{res.path('case_study', 'active_set')} has no rows")
         obj = avail[0]
-    pose, members, summary = an.active_set_trace(act, obj, grasps=grasps)
+    pose, members, summary = an.active_set_trace(
+        act, obj, ACTIVE_SET_METHODS[0], grasps=grasps
+    )
     set_ = res.object_sets().get(obj, "")
     steps = summary["step"].to_numpy(int)
     first, last = int(steps.min()), int(steps.max())
@@ -407,7 +410,7 @@ def active_set_figure(
         ids = members.loc[members["step"] == step, "grasp"].to_numpy(int)
 
         def draw(pb, p, img, ax):
-            from legs_jax import render
+            from legs_jax.report import render
 
             valid = np.flatnonzero(pb.valid[0, p])
             rng = np.random.default_rng(0)

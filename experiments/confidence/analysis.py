@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from legs_jax.figures import Run, appendix_tables
-from legs_jax.report import Appendix, appendix_section
+from legs_jax.report.document import Appendix, appendix_section
+from legs_jax.report.figures import appendix_step
 
 # The appendix's table, LEGS on the bar clamp: delta -> (mean, SE); s = 1.
 SPEC = Appendix(
@@ -27,12 +27,7 @@ SPEC = Appendix(
 )
 
 
-def _tables_step(run: Run) -> None:
-    files, run.ctx[SPEC.experiment] = appendix_tables(run.res, run.tables, SPEC)
-    run.written.extend(files)
-
-
-STEPS = (("appendix: confidence", _tables_step),)
+STEPS = (("appendix: confidence", appendix_step(SPEC)),)
 
 
 def _section(ctx: Mapping) -> list[str]:

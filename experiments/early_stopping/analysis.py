@@ -13,8 +13,9 @@ import numpy as np
 import pandas as pd
 
 from experiments.early_stopping.sweep import CHECK_METHODS, RHO_MIN
-from legs_jax import analysis as an
-from legs_jax.figures import (
+from legs_jax.report import analysis as an
+from legs_jax.report.document import Cell, Num, Table, pct, to_markdown, write_pair
+from legs_jax.report.figures import (
     MissingResults,
     Results,
     Run,
@@ -22,7 +23,6 @@ from legs_jax.figures import (
     save_figure,
     write_csv,
 )
-from legs_jax.report import Cell, Num, Table, pct, to_markdown, write_pair
 
 # Section 5.4: accuracy and tightness of the stopping bound on the Dex-Net set.
 PAPER_EARLY_STOPPING = {"accuracy": 0.958, "tightness": 0.0297}

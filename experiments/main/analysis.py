@@ -16,9 +16,9 @@ import numpy as np
 import pandas as pd
 
 from experiments.early_stopping.analysis import PAPER_EARLY_STOPPING
-from legs_jax import analysis as an
-from legs_jax.figures import Results, Run, write_csv
-from legs_jax.report import (
+from experiments.main import sweep
+from legs_jax.report import analysis as an
+from legs_jax.report.document import (
     Cell,
     Num,
     Table,
@@ -27,6 +27,16 @@ from legs_jax.report import (
     pct,
     to_markdown,
     write_pair,
+)
+from legs_jax.report.figures import Results, Run, write_csv
+
+# How Table I orders, labels and compares the arms (the main experiment's
+# declarations; the case study and the prior comparison show the same arms).
+ARMS = an.Arms(
+    order=tuple(sweep.TABLE_ORDER),
+    declared=tuple(dict.fromkeys(m for m, _, _ in sweep.ARMS)),
+    variants=dict(sweep.VARIANTS),
+    proposed=sweep.PROPOSED,
 )
 
 # Object counts of the paper's data sets.
@@ -70,11 +80,11 @@ def table_one_table(
 ) -> Table:
     """Table I: one row per arm, per set our mean ± SE beside the paper's."""
     sets = an.order_sets(t1["set"])
-    arms = an.arms_of(t1)
+    arms = ARMS.of_table(t1)
     for s in sets:
         for m in PAPER_TABLE1.get(s, {}):
             if (m, "") not in arms:
-                arms = an.sort_arms([*arms, (m, "")])
+                arms = ARMS.sort([*arms, (m, "")])
     header = ["Method"]
     align = "l"
     for s in sets:
@@ -89,18 +99,18 @@ def table_one_table(
     # 0.005 are all bold.
     best = {}
     oracle = an.oracle_methods()
-    compared = t1["method"].isin(an.COMPETITORS) & (t1["variant"] == "")
+    compared = t1["method"].isin(ARMS.competitors) & (t1["variant"] == "")
     for s in sets:
         d = t1[(t1["set"] == s) & compared]
         best[s] = float(d["mean"].min()) if len(d) else math.nan
     rows = []
     for m, v in arms:
-        row: list[Cell] = [an.arm_label(m, v)]
+        row: list[Cell] = [ARMS.label(m, v)]
         for s in sets:
             d = t1[(t1["set"] == s) & (t1["method"] == m) & (t1["variant"] == v)]
             if len(d):
                 mean, se = float(d["mean"].iloc[0]), float(d["se"].iloc[0])
-                bold = m in an.COMPETITORS and not v and mean <= best[s] + 0.005
+                bold = m in ARMS.competitors and not v and mean <= best[s] + 0.005
                 row.append(Num(mean, se, 3, bold))
             else:
                 row.append("—")
@@ -147,8 +157,8 @@ def wins_table(wins: pd.DataFrame) -> Table:
             header.append("paper")
             align += "c"
     rows = []
-    for m in an.COMPETITORS:
-        row: list[Cell] = [an.arm_label(m)]
+    for m in ARMS.competitors:
+        row: list[Cell] = [ARMS.label(m)]
         for s in sets:
             d = wins[(wins["set"] == s) & (wins["method"] == m)]
             if len(d):
@@ -181,10 +191,10 @@ def per_object_table(
     gaps: pd.DataFrame, win: pd.DataFrame, prior: str = "unknown"
 ) -> Table:
     """Final gap of every arm on every object (mean ± SE over its runs)."""
-    arms = an.arms_of(gaps)
+    arms = ARMS.of_table(gaps)
     short = {
-        a: an.arm_declaration(*a).get("short_label") or an.arm_label(*a)
-        for a in {*arms, *((m, "") for m in an.COMPETITORS)}
+        a: ARMS.declaration(*a).get("short_label") or ARMS.label(*a)
+        for a in {*arms, *((m, "") for m in ARMS.competitors)}
     }
     header = ["Set", "Object", *[short[a] for a in arms]]
     header.append("Winners")
@@ -196,7 +206,7 @@ def per_object_table(
         row: list[Cell] = [an.SET_LABELS.get(s, s), o]
         winners = []
         if win_by_obj is not None and o in win_by_obj.index:
-            winners = [m for m in an.COMPETITORS if bool(win_by_obj.loc[o, m])]
+            winners = [m for m in ARMS.competitors if bool(win_by_obj.loc[o, m])]
         for m, v in arms:
             if (o, m, v) in keyed.index:
                 r = keyed.loc[(o, m, v)]
@@ -228,7 +238,7 @@ def _ranking(methods: Sequence[str], means: Sequence[float], tol: float, eq: str
     for i, m in enumerate(methods):
         if i:
             text += f" {eq} " if means[i] - means[i - 1] <= tol else " < "
-        text += an.arm_label(m)
+        text += ARMS.label(m)
     return text
 
 
@@ -246,7 +256,7 @@ def _table_one_sentences(main: Mapping) -> list[str]:
             if not len(r):
                 continue
             mean, se = float(r["mean"].iloc[0]), float(r["se"].iloc[0])
-            text = f"{an.arm_label(m)} {fmt(mean)} ± {fmt(se)}"
+            text = f"{ARMS.label(m)} {fmt(mean)} ± {fmt(se)}"
             if paper and m in paper:
                 pm, pse = paper[m]
                 diff = mean - pm
@@ -257,21 +267,21 @@ def _table_one_sentences(main: Mapping) -> list[str]:
                     "error)"
                 )
             parts.append(text)
-        w = wins[(wins["set"] == s) & (wins["method"] == an.PROPOSED)]
+        w = wins[(wins["set"] == s) & (wins["method"] == ARMS.proposed)]
         win_text = ""
         if len(w):
             win_text = (
                 f" LEGS wins {int(w['wins'].iloc[0])} of {int(w['n_objects'].iloc[0])}"
                 " objects"
             )
-            pw = PAPER_WINS.get(s, {}).get(an.PROPOSED)
+            pw = PAPER_WINS.get(s, {}).get(ARMS.proposed)
             if pw:
                 win_text += (
                     f" ({100 * w['wins'].iloc[0] / max(1, w['n_objects'].iloc[0]):.0f}"
                     f" %; paper: {pw[0]} of {pw[1]}, {100 * pw[0] / pw[1]:.0f} %)"
                 )
             win_text += "."
-        comp = d[d["method"].isin(an.COMPETITORS) & (d["variant"] == "")]
+        comp = d[d["method"].isin(ARMS.competitors) & (d["variant"] == "")]
         order = comp.sort_values("mean", kind="stable")
         ranking = _ranking(
             list(order["method"]), list(order["mean"]), an.WIN_TOLERANCE, "≈"
@@ -282,7 +292,8 @@ def _table_one_sentences(main: Mapping) -> list[str]:
             line = f"  Ranking of the compared methods by mean gap: {ranking}."
             if paper:
                 pr = sorted(
-                    (m for m in an.COMPETITORS if m in paper), key=lambda m: paper[m][0]
+                    (m for m in ARMS.competitors if m in paper),
+                    key=lambda m: paper[m][0],
                 )
                 line += (
                     " Paper: "
@@ -302,7 +313,7 @@ def _extra_row_lines(d: pd.DataFrame, comp: pd.DataFrame) -> list[str]:
         return []
     low = comp.loc[comp["mean"].idxmin()]
     extra = d[
-        ~d["method"].isin(an.COMPETITORS)
+        ~d["method"].isin(ARMS.competitors)
         & ~d["method"].isin(an.oracle_methods())
         & (d["variant"] == "")
     ]
@@ -311,9 +322,9 @@ def _extra_row_lines(d: pd.DataFrame, comp: pd.DataFrame) -> list[str]:
         diff = float(r.mean) - float(low["mean"])
         se = math.hypot(float(r.se), float(low["se"]))
         out.append(
-            f"  Extra row {an.arm_label(r.method)}: {fmt(float(r.mean))} ± "
+            f"  Extra row {ARMS.label(r.method)}: {fmt(float(r.mean))} ± "
             f"{fmt(float(r.se))}, {'below' if diff < 0 else 'above'} the lowest "
-            f"compared row ({an.arm_label(low['method'])}) by {fmt(abs(diff))}, "
+            f"compared row ({ARMS.label(low['method'])}) by {fmt(abs(diff))}, "
             f"{'within' if abs(diff) <= se else 'outside'} the combined standard "
             "error."
         )
@@ -356,25 +367,25 @@ def _prior_comparisons(t1) -> list[str]:
     oracle = an.oracle_methods()
     out = []
     for s in an.order_sets(t1["set"]):
-        me = _row(t1, s, an.PROPOSED)
-        rows = {m: _row(t1, s, m) for m in an.COMPETITORS if m != an.PROPOSED}
+        me = _row(t1, s, ARMS.proposed)
+        rows = {m: _row(t1, s, m) for m in ARMS.competitors if m != ARMS.proposed}
         rows = {m: r for m, r in rows.items() if r is not None}
         if me is None or not rows:
             continue
 
         below = [
-            f"{an.arm_label(m)} ({fmt(r[0])})" for m, r in rows.items() if me[0] < r[0]
+            f"{ARMS.label(m)} ({fmt(r[0])})" for m, r in rows.items() if me[0] < r[0]
         ]
         above = [
-            f"{an.arm_label(m)} ({fmt(r[0])})" for m, r in rows.items() if me[0] > r[0]
+            f"{ARMS.label(m)} ({fmt(r[0])})" for m, r in rows.items() if me[0] > r[0]
         ]
         close = [
-            an.arm_label(m)
+            ARMS.label(m)
             for m, r in rows.items()
             if abs(me[0] - r[0]) <= math.hypot(me[1], r[1])
         ]
         text = (
-            f"On {an.SET_LABELS.get(s, s)}, {an.arm_label(an.PROPOSED)} ({fmt(me[0])})"
+            f"On {an.SET_LABELS.get(s, s)}, {ARMS.label(ARMS.proposed)} ({fmt(me[0])})"
         )
         text += " is " + "; ".join(
             x
@@ -389,21 +400,21 @@ def _prior_comparisons(t1) -> list[str]:
             if close
             else " (every difference outside the combined standard error)."
         )
-        best = min([*rows, an.PROPOSED], key=lambda m: (_row(t1, s, m) or (9, 0))[0])
+        best = min([*rows, ARMS.proposed], key=lambda m: (_row(t1, s, m) or (9, 0))[0])
         for o in oracle:
             ro = _row(t1, s, o)
             if ro is not None:
                 rb = _row(t1, s, best)
                 gap = "above" if rb[0] > ro[0] else "not above"
                 text += (
-                    f" The lowest compared row, {an.arm_label(best)} ({fmt(rb[0])}), "
-                    f"is {gap} the {an.arm_label(o)} ({fmt(ro[0])})."
+                    f" The lowest compared row, {ARMS.label(best)} ({fmt(rb[0])}), "
+                    f"is {gap} the {ARMS.label(o)} ({fmt(ro[0])})."
                 )
         paper = sorted(
             (v[0], m) for m, v in PAPER_TABLE1.get(s, {}).items() if m not in oracle
         )
         if paper:
-            low = [an.arm_label(m) for v, m in paper if v == paper[0][0]]
+            low = [ARMS.label(m) for v, m in paper if v == paper[0][0]]
             text += (
                 f" In the paper the lowest row here is {_listing(low)} "
                 f"({paper[0][0]:.2f})."
@@ -500,7 +511,7 @@ def _problem_model_section(ctx: Mapping) -> list[str]:
                 c += fmt(float(now["mean"].iloc[0])) if len(now) else "—"
                 c += f" ({paper[0]:.2f})" if paper else ""
                 cells.append(c)
-            L.append(f"| {an.arm_label(m, v)} | " + " | ".join(cells) + " |")
+            L.append(f"| {ARMS.label(m, v)} | " + " | ".join(cells) + " |")
         L.append("")
         L += _before_after_sentences(t1b, t1)
     es_b = pm.get("early_stopping_before")
@@ -529,12 +540,12 @@ def _before_after_sentences(t1b, t1) -> list[str]:
         parts = []
         for label, t in (("before", t1b), ("now", t1)):
             d = t[(t.set == s) & (t.variant == "")]
-            d = d[[m in an.COMPETITORS or m == an.PROPOSED for m in d.method]]
+            d = d[[m in ARMS.competitors or m == ARMS.proposed for m in d.method]]
             if not len(d):
                 continue
             best = d.loc[d["mean"].idxmin()]
-            parts.append(f"{label} {an.arm_label(best.method)} ({fmt(best['mean'])})")
-        legs_now = _row(t1, s, an.PROPOSED)
+            parts.append(f"{label} {ARMS.label(best.method)} ({fmt(best['mean'])})")
+        legs_now = _row(t1, s, ARMS.proposed)
         k100 = _row(t1, s, "borges_100")
         cmp = ""
         if legs_now and k100:
@@ -546,8 +557,8 @@ def _before_after_sentences(t1b, t1) -> list[str]:
                 else ("below" if diff < 0 else "above")
             )
             cmp = (
-                f"; now {an.arm_label(an.PROPOSED)} is {rel} "
-                f"{an.arm_label('borges_100')} ({fmt(legs_now[0])} against "
+                f"; now {ARMS.label(ARMS.proposed)} is {rel} "
+                f"{ARMS.label('borges_100')} ({fmt(legs_now[0])} against "
                 f"{fmt(k100[0])}, combined standard error {fmt(se)})"
             )
         if parts:
@@ -582,7 +593,7 @@ def _discussion(ctx: Mapping) -> list[str]:
                 paper = PAPER_TABLE1.get(s, {}).get(m)
                 if mean is not None and paper:
                     rows.append(
-                        f"{an.arm_label(m)} on {an.SET_LABELS.get(s, s)}: "
+                        f"{ARMS.label(m)} on {an.SET_LABELS.get(s, s)}: "
                         f"{fmt(mean)} (paper {paper[0]:.2f})"
                     )
         if rows:
@@ -640,8 +651,8 @@ def _discussion(ctx: Mapping) -> list[str]:
                     else "its pruning changes where most runs end"
                 )
                 L += [
-                    f"{an.arm_label('legs_no_as')} ends with exactly the final gap "
-                    f"of {an.arm_label('borges_2000')} in {pct(same)} of the runs "
+                    f"{ARMS.label('legs_no_as')} ends with exactly the final gap "
+                    f"of {ARMS.label('borges_2000')} in {pct(same)} of the runs "
                     f"(both share the random numbers of a rollout): {reading}.",
                     "",
                 ]
@@ -747,10 +758,10 @@ def _discussion(ctx: Mapping) -> list[str]:
 
 def main_tables(res: Results, out: Path) -> tuple[list[Path], dict[str, Any]]:
     runs = res.table("main", "runs")
-    gaps = an.object_gaps(runs)
-    t1 = an.table_one(gaps)
-    wins = an.win_counts(gaps)
-    win = an.winners(gaps)
+    gaps = an.object_gaps(runs, ARMS)
+    t1 = an.table_one(gaps, ARMS)
+    wins = an.win_counts(gaps, ARMS.competitors)
+    win = an.winners(gaps, ARMS.competitors)
     files = []
     horizon = int(runs["horizon"].max()) if "horizon" in runs.columns else None
     prior = an.prior_kind(res)

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from legs_jax.figures import Run, appendix_tables
-from legs_jax.report import Appendix, appendix_section
+from legs_jax.report.document import Appendix, appendix_section
+from legs_jax.report.figures import appendix_step
 
 # The appendix's table, LEGS on the bar clamp: s -> (mean, SE); delta = 0.07.
 SPEC = Appendix(
@@ -28,12 +28,7 @@ SPEC = Appendix(
 )
 
 
-def _tables_step(run: Run) -> None:
-    files, run.ctx[SPEC.experiment] = appendix_tables(run.res, run.tables, SPEC)
-    run.written.extend(files)
-
-
-STEPS = (("appendix: prior strength", _tables_step),)
+STEPS = (("appendix: prior strength", appendix_step(SPEC)),)
 
 
 def _section(ctx: Mapping) -> list[str]:

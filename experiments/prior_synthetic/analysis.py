@@ -20,10 +20,10 @@ from typing import Any
 
 import pandas as pd
 
-from experiments.main.analysis import PAPER_TABLE1, PAPER_WINS
-from legs_jax import analysis as an
-from legs_jax.figures import Results, Run, write_csv
-from legs_jax.report import Num, Table, fmt, pct, to_markdown, write_pair
+from experiments.main.analysis import ARMS, PAPER_TABLE1, PAPER_WINS
+from legs_jax.report import analysis as an
+from legs_jax.report.document import Num, Table, fmt, pct, to_markdown, write_pair
+from legs_jax.report.figures import Results, Run, write_csv
 
 NAME = "prior_synthetic"
 SET = "dexnet_adv"  # the set this experiment runs
@@ -47,7 +47,7 @@ def _bound(checks: pd.DataFrame | None, objects) -> dict[str, float] | None:
     ``objects`` (None without checks)."""
     if checks is None:
         return None
-    c = checks[checks["object"].isin(objects) & (checks["method"] == an.PROPOSED)]
+    c = checks[checks["object"].isin(objects) & (checks["method"] == ARMS.proposed)]
     if c.empty:
         return None
     s = an.bound_summary(c).set_index("bound")
@@ -60,14 +60,14 @@ def comparison(res: Results, main: Mapping | None) -> dict[str, Any]:
     """Both priors' Dex-Net rows, win counts and stopping bounds (the learned
     prior's from ``main``, restricted to the objects this experiment ran)."""
     runs = res.table(NAME, "runs")
-    gaps = an.object_gaps(runs)
+    gaps = an.object_gaps(runs, ARMS)
     objects = sorted(set(gaps.loc[gaps["set"] == SET, "object"]))
     methods = sorted(set(gaps["method"]))
-    competitors = [m for m in an.COMPETITORS if m in methods]
+    competitors = [m for m in ARMS.competitors if m in methods]
     out: dict[str, Any] = {"objects": objects, "competitors": competitors}
     out["synthetic"] = dict(
-        table1=an.table_one(gaps),
-        wins=an.win_counts(gaps, competitors=competitors),
+        table1=an.table_one(gaps, ARMS),
+        wins=an.win_counts(gaps, competitors),
         bound=_bound(
             res.table(NAME, "checks") if res.has(NAME, "checks") else None, objects
         ),
@@ -81,8 +81,8 @@ def comparison(res: Results, main: Mapping | None) -> dict[str, Any]:
             & (g["variant"] == "")
         ]
         out["learned"] = dict(
-            table1=an.table_one(g),
-            wins=an.win_counts(g, competitors=competitors),
+            table1=an.table_one(g, ARMS),
+            wins=an.win_counts(g, competitors),
             bound=_bound(
                 res.table("main", "checks") if res.has("main", "checks") else None,
                 objects,
@@ -97,10 +97,10 @@ def comparison_table(cmp: Mapping) -> Table:
     lrn = _rows(cmp["learned"]["table1"]) if "learned" in cmp else {}
     paper = PAPER_TABLE1.get(SET, {})
     rows = []
-    for m in an.METHODS:
+    for m in ARMS.methods:
         if m not in syn:
             continue
-        cells = [an.arm_label(m)]
+        cells = [ARMS.label(m)]
         for src in (lrn, syn):
             v = src.get(m)
             cells.append(Num(v[0], v[1]) if v else "n/a")
@@ -129,12 +129,12 @@ def _win_line(cmp: Mapping) -> str:
         if kind not in cmp:
             continue
         w = cmp[kind]["wins"].set_index("method")
-        if an.PROPOSED not in w.index:
+        if ARMS.proposed not in w.index:
             continue
-        r = w.loc[an.PROPOSED]
+        r = w.loc[ARMS.proposed]
         parts.append(f"{int(r.wins)} of {int(r.n_objects)} with the {kind} prior")
-    paper = PAPER_WINS.get(SET, {}).get(an.PROPOSED)
-    line = f"- {an.arm_label(an.PROPOSED)} wins " + " and ".join(parts)
+    paper = PAPER_WINS.get(SET, {}).get(ARMS.proposed)
+    line = f"- {ARMS.label(ARMS.proposed)} wins " + " and ".join(parts)
     if paper:
         line += f" (paper: {paper[0]} of {paper[1]})"
     return line + "."
@@ -145,8 +145,8 @@ def _gap_line(cmp: Mapping) -> str | None:
     difference is within the standard errors."""
     if "learned" not in cmp:
         return None
-    lrn = _rows(cmp["learned"]["table1"]).get(an.PROPOSED)
-    syn = _rows(cmp["synthetic"]["table1"]).get(an.PROPOSED)
+    lrn = _rows(cmp["learned"]["table1"]).get(ARMS.proposed)
+    syn = _rows(cmp["synthetic"]["table1"]).get(ARMS.proposed)
     if not lrn or not syn:
         return None
     diff = lrn[0] - syn[0]
@@ -158,7 +158,7 @@ def _gap_line(cmp: Mapping) -> str | None:
         else f"{abs(diff) / se:.1f} combined standard errors apart"
     )
     return (
-        f"- {an.arm_label(an.PROPOSED)}'s gap is {fmt(lrn[0])} with the learned prior "
+        f"- {ARMS.label(ARMS.proposed)}'s gap is {fmt(lrn[0])} with the learned prior "
         f"and {fmt(syn[0])} with the synthetic one: lower with the {which} prior, "
         f"{verdict} ({fmt(se)})."
     )
@@ -178,7 +178,7 @@ def _ranking_line(cmp: Mapping) -> list[str]:
             continue
         best = min(rows, key=lambda m: rows[m][0])
         out.append(
-            f"- Lowest competitor row with the {kind} prior: {an.arm_label(best)} "
+            f"- Lowest competitor row with the {kind} prior: {ARMS.label(best)} "
             f"({fmt(rows[best][0])})."
         )
     return out
@@ -196,7 +196,7 @@ def _bound_line(cmp: Mapping) -> str | None:
     if not parts:
         return None
     return (
-        f"- The stopping bound of {an.arm_label(an.PROPOSED)} is valid at "
+        f"- The stopping bound of {ARMS.label(ARMS.proposed)} is valid at "
         + " and at ".join(parts)
         + " on these objects (paper: 95.8 % over both sets)."
     )

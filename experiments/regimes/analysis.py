@@ -18,8 +18,8 @@ import pandas as pd
 
 from experiments.regimes import sweep as decl
 from legs_jax import families
-from legs_jax.figures import MissingResults, Run, pyplot, save_figure, write_csv
-from legs_jax.report import Num, Table, fmt, to_markdown, write_pair
+from legs_jax.report.document import Num, Table, fmt, to_markdown, write_pair
+from legs_jax.report.figures import MissingResults, Run, pyplot, save_figure, write_csv
 
 NAME = decl.NAME
 PROPOSED = "legs"
@@ -91,7 +91,7 @@ def _family_of(name: str) -> dict[str, Any] | None:
 def generated_features(run: Run, names: Sequence[str]) -> pd.DataFrame:
     """Features of the generated problems: from the files the sweep ran (the
     objects table), else regenerated from the declaration."""
-    from legs_jax import problem as problem_mod
+    from legs_jax.core import problem as problem_mod
 
     files = {}
     if run.res.has(NAME, "objects"):

@@ -2,18 +2,18 @@
 
 A session is one rollout (B = 1) of the batched engine's step, cut at the point
 where the world answers: :meth:`Loop.select` is the engine's ``select`` and
-:meth:`Loop.tell` its :func:`legs_jax.engine.agent_step` (update → prune where the
+:meth:`Loop.tell` its :func:`legs_jax.core.engine.agent_step` (update → prune where the
 method's schedule says → recommendation of the pose just grasped), with the
 engine's key streams
 (method draws of step t from ``fold_in(method_key, t)``, check c from
 ``fold_in(check_key, c)``). The Dirichlet bound is
-:func:`legs_jax.engine.dirichlet_quantiles`. Every function is jitted once per
+:func:`legs_jax.core.engine.dirichlet_quantiles`. Every function is jitted once per
 (method, pose capacity P, reservoir size K, the method's static hyperparameters).
 
 Hyperparameters are the method's own (``method.hparams``), validated by the
-registry's rules (:func:`legs_jax.methods.parse_grid`, as :func:`legs_jax.engine.run`
-does): the static ones set :class:`Config`, the traced ones are the method's
-``traced_hparams`` NamedTuple with one row.
+registry's rules (:func:`legs_jax.core.methods.parse_grid`, as
+:func:`legs_jax.core.engine.run` does): the static ones set :class:`Config`, the
+traced ones are the method's ``traced_hparams`` NamedTuple with one row.
 
 Poses appear during a session. The tables hold a fixed capacity of P poses; a
 pose without a reservoir has no valid grasp. When a pose gets its reservoir the
@@ -32,11 +32,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from legs_jax import engine, stopping
-from legs_jax import keys as keys_mod
-from legs_jax import methods as methods_mod
+from legs_jax.core import engine, stopping
+from legs_jax.core import keys as keys_mod
+from legs_jax.core import methods as methods_mod
+from legs_jax.core.methods.base import Config, Ctx, Method, Tables
 from legs_jax.errors import ConfigError
-from legs_jax.methods.base import Config, Ctx, Method, Tables
 
 __all__ = ["ORACLES", "Loop", "default_method", "method_names", "check_hparams"]
 
@@ -153,7 +153,7 @@ def _programs(method: str, cfg: Config):
         return m.estimates(ms, ctx(tables, hp), cfg)
 
     def ours(key, counts, observed, ms, rec, forgotten, tables, hp):
-        """Our stopping bound (legs_jax.stopping), NaN without per-grasp counts."""
+        """Our stopping bound (legs_jax.core.stopping), NaN without per-grasp counts."""
         if m.counts is None:
             return jnp.full(1, jnp.nan, jnp.float32)
         succ, fail, fit, ids = m.counts(ms, ctx(tables, hp), cfg)
@@ -161,26 +161,11 @@ def _programs(method: str, cfg: Config):
         post = stopping.eb_posterior(succ, fail, fit, hit, forgotten)
         draws = stopping.draw_values(key, post, engine.NUM_DIRICHLET_SAMPLES)
         values = jnp.zeros(counts.shape[:1] + (1,) + counts.shape[1:], jnp.float32)
-        lo = engine.dirichlet_quantiles(
-            key,
-            counts,
-            observed,
-            values,
-            engine.DELTA_STOP,
-            engine.NUM_DIRICHLET_SAMPLES,
-            draws=draws,
-        )
-        return lo[:, -1]
+        return bound(key, counts, observed, values, draws)[:, -1]
 
-    def bound(key, counts, observed, values):
-        return engine.dirichlet_quantiles(
-            key,
-            counts,
-            observed,
-            values,
-            engine.DELTA_STOP,
-            engine.NUM_DIRICHLET_SAMPLES,
-        )
+    def bound(key, counts, observed, values, draws=None):
+        """The Dirichlet bound (δ = DELTA_STOP, NUM_DIRICHLET_SAMPLES samples)."""
+        return engine.dirichlet_quantiles(key, counts, observed, values, draws=draws)
 
     return dict(
         init=jax.jit(init),
@@ -202,7 +187,7 @@ class Loop:
       num_grasps: the reservoir size K.
       hparams: overrides of the method's defaults (``method.hparams``); those of
         other methods are ignored (:func:`_own`).
-      rollout_key: a typed key (:func:`legs_jax.keys.rollout_key`).
+      rollout_key: a typed key (:func:`legs_jax.core.keys.rollout_key`).
     """
 
     def __init__(self, method, num_poses, num_grasps, hparams, rollout_key):
@@ -311,7 +296,7 @@ class Loop:
         return float(lo[0, 0]), float(lo[0, 1])
 
     def bound_ours(self, counts: np.ndarray, observed: np.ndarray, check: int) -> float:
-        """Our stopping bound (:mod:`legs_jax.stopping`) on the same λ' draws as
+        """Our stopping bound (:mod:`legs_jax.core.stopping`) on the same λ' draws as
         :meth:`bound`; NaN for a method without per-grasp counts."""
         key = keys_mod.step_keys(self._check_key, check)
         lo = self._fn["ours"](

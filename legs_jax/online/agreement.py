@@ -4,9 +4,9 @@ Online: R sessions (seeds 0..R-1) driven by the simulated robot with the true po
 given and the problem's own reservoirs and prior (``given_poses``): the robot
 executes each asked grasp with the perturbed physics, drops or topples the object
 by λ and the topple matrix, and the gap Σ_s λ_s (p*_s − p[s, π_t(s)]) is read
-from the problem's table p every ``every`` steps. Engine: :func:`legs_jax.engine.run`
-on the same problem, trial, method and hyperparameters (its rewards are draws
-from the table p).
+from the problem's table p every ``every`` steps. Engine:
+:func:`legs_jax.core.engine.run` on the same problem, trial, method and
+hyperparameters (its rewards are draws from the table p).
 
 Agreement (the tolerance of the test and of the table written here): at every
 recorded step the mean gaps differ by at most ``3 · SE + SLACK`` (SE the standard
@@ -29,10 +29,10 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from legs_jax import engine
+from legs_jax.core import engine
+from legs_jax.core.problem import stack
 from legs_jax.online.robot import World
 from legs_jax.online.simulate import Simulation, save_figure
-from legs_jax.problem import stack
 
 __all__ = ["SLACK", "compare", "online_curves", "engine_curves"]
 
@@ -128,7 +128,7 @@ def main(args) -> int:
     """``python -m legs_jax.online agreement``: the table and figure."""
     from tqdm.auto import tqdm
 
-    from legs_jax import problem as problem_mod
+    from legs_jax.core import problem as problem_mod
     from legs_jax.online.errors import InputError
 
     try:

@@ -101,7 +101,7 @@ def time_first_requests(method: str, depth, intr: dict, cache: str) -> dict:
 def _timed_methods() -> tuple[str, str]:
     """The default method and the first dense method of the benchmark's table:
     an active set of k slots against all K grasps."""
-    from legs_jax import methods
+    from legs_jax.core import methods
 
     dense = [
         m

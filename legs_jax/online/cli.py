@@ -75,8 +75,16 @@ def _cache_arg(p: argparse.ArgumentParser) -> None:
     compile_cache_arg(p, "a restarted session skips compiling")
 
 
-def _hparams(items) -> dict:
+def _hparams(items, method: str) -> dict:
+    """``--hparam`` values by name: integers for those ``method`` declares
+    integer, floats for the others (the method checks names and ranges)."""
     out = {}
+    integer: set[str] = set()
+    if items:
+        from legs_jax.core import methods
+
+        ranges = methods.resolve(method).ranges
+        integer = {name for name, rng in ranges.items() if rng.integer}
     for item in items:
         name, sep, value = item.partition("=")
         if not sep:
@@ -85,7 +93,7 @@ def _hparams(items) -> dict:
             v = float(value)
         except ValueError:
             raise InputError(f"--hparam {name}: {value!r} is not a number") from None
-        out[name] = int(v) if name in ("k", "n") and v.is_integer() else v
+        out[name] = int(v) if name in integer and v.is_integer() else v
     return out
 
 
@@ -184,7 +192,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         metavar="RHO_MIN",
         help="stop at the first curve point whose stopping bound (ours, "
-        "legs_jax.stopping) is at least RHO_MIN",
+        "legs_jax.core.stopping) is at least RHO_MIN",
     )
     quiet_arg(p)
     _session_args(p)
@@ -320,7 +328,7 @@ def _serve(args) -> int:
             session = Session.create(
                 args.dir,
                 args.method,
-                hparams=_hparams(args.hparam),
+                hparams=_hparams(args.hparam, args.method),
                 seed=args.seed,
                 max_poses=args.max_poses,
                 reservoir_size=args.reservoir,
@@ -377,7 +385,7 @@ def _same_prior(session, prior: str | None) -> None:
 
 
 def _simulate(args) -> int:
-    from legs_jax import problem as problem_mod
+    from legs_jax.core import problem as problem_mod
     from legs_jax.online.robot import World
     from legs_jax.online.simulate import Simulation
     from precompute.errors import PrecomputeError
@@ -452,7 +460,7 @@ def _simulate(args) -> int:
         problem=pb,
         trial=args.trial,
         given_poses=args.given_poses,
-        hparams=_hparams(args.hparam),
+        hparams=_hparams(args.hparam, args.method),
         max_poses=args.max_poses,
         reservoir_size=args.reservoir,
         eval_every=args.eval_every,

@@ -23,7 +23,7 @@ open (created, or resumed with every recorded outcome), or ``{"ok": false,
 folder), and the process exits with status 2.
 
 ``bound`` answers both stopping bounds: the paper's ``p_lower`` (and
-``p_lower_attempted``) and ours ``p_lower_ours`` (:mod:`legs_jax.stopping`);
+``p_lower_attempted``) and ours ``p_lower_ours`` (:mod:`legs_jax.core.stopping`);
 with ``rho_min`` (the stopping threshold ρ_min) also ``stop`` (the paper's bound
 ≥ ρ_min) and ``stop_ours`` (ours ≥ ρ_min: the signal to stop on).
 """

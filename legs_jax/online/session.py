@@ -12,7 +12,7 @@ A :class:`Session` runs one exploration method on one object in front of a robot
   log on disk before the call returns.
 - :meth:`Session.bound` is the Dirichlet lower bound p̂_ℓ of SPEC §5 on the success
   rate of the current recommendations (the paper's, ``p_lower``) and ours
-  (``p_lower_ours``, :mod:`legs_jax.stopping`, the one to stop on), and whether
+  (``p_lower_ours``, :mod:`legs_jax.core.stopping`, the one to stop on), and whether
   each exceeds ρ_min.
 
 With ``given_poses`` (a problem file's reservoirs) the caller names the pose
@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from legs_jax import keys as keys_mod
+from legs_jax.core import keys as keys_mod
 from legs_jax.online import recognition as rec_mod
 from legs_jax.online import sampler as sampler_mod
 from legs_jax.online._adapter import Loop, check_hparams, default_method

@@ -232,7 +232,7 @@ def _validate_args(p: argparse.ArgumentParser, a: argparse.Namespace) -> None:
     a.methods = _split_commas(a.methods)
     if a.methods is not None and not a.methods:
         p.error("--methods: no method named")
-    from legs_jax import methods
+    from legs_jax.core import methods
 
     known = methods.names()
     for m in a.methods or ():
@@ -260,10 +260,10 @@ def _validate_args(p: argparse.ArgumentParser, a: argparse.Namespace) -> None:
 
 def _check_user_methods(plans: Sequence[ExperimentPlan], quiet: bool) -> None:
     """Run the conformance checks on every method from outside the package
-    (:mod:`legs_jax.methods.conformance`) before any chunk; a failure is a
+    (:mod:`legs_jax.core.methods.conformance`) before any chunk; a failure is a
     one-line error."""
-    from legs_jax import methods
-    from legs_jax.methods import conformance
+    from legs_jax.core import methods
+    from legs_jax.core.methods import conformance
 
     names = {a.method for p in plans for a in p.arms}
     for name in sorted(n for n in names if not methods.builtin(n)):
@@ -341,8 +341,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     started = False
     try:
+        from legs_jax.core.problem import ProblemFileError
         from legs_jax.errors import ConfigError
-        from legs_jax.problem import ProblemFileError
 
         dist = _init_distributed(a)
         devices = _devices(a.devices)

@@ -33,7 +33,7 @@ from legs_jax.sweep.store import (
 def _engine():
     """The rollout engine module (imported late: JAX must start after the device
     flags are set)."""
-    from legs_jax import engine
+    from legs_jax.core import engine
 
     return engine
 
@@ -46,7 +46,7 @@ class _ProblemCache:
         self._items: OrderedDict[str, Any] = OrderedDict()
 
     def get(self, path: str):
-        from legs_jax import problem as problem_mod
+        from legs_jax.core import problem as problem_mod
 
         if path in self._items:
             self._items.move_to_end(path)
@@ -66,7 +66,7 @@ def _run_chunk(
     progress: Callable[[float], None] | None,
 ):
     """Compute one chunk; returns its tables."""
-    from legs_jax import problem as problem_mod
+    from legs_jax.core import problem as problem_mod
 
     arm = plan.arms[chunk.arm]
     objs = [plan.objects[i] for i in chunk.objects]

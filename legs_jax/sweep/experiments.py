@@ -52,7 +52,7 @@ def _catalog():
 
 def _name_object_id(name: str) -> int:
     """Stable object id of a problem outside the catalogue (SPEC §2 contract)."""
-    from legs_jax.keys import object_id_from_name
+    from legs_jax.core.keys import object_id_from_name
 
     return int(object_id_from_name(name))
 
@@ -92,7 +92,7 @@ def _resolve_names(requested: Sequence[str], catalog) -> list[tuple[str, str, in
 def _entry(
     name: str, set_: str, object_id: int, path: str | os.PathLike, source: str
 ) -> ObjectEntry:
-    from legs_jax import problem as problem_mod
+    from legs_jax.core import problem as problem_mod
 
     head = problem_mod.peek(path)  # ProblemFileError names the file and field
     T, P, K = head["shapes"]["robustness"]
@@ -111,7 +111,7 @@ def _entry(
 
 
 def _user_problems(paths: Sequence[str], catalog) -> list[ObjectEntry]:
-    from legs_jax import problem as problem_mod
+    from legs_jax.core import problem as problem_mod
 
     known = {}
     if catalog is not None:
@@ -142,8 +142,8 @@ def _user_problems(paths: Sequence[str], catalog) -> list[ObjectEntry]:
 
 def _smoke_problems(names: Sequence[str], catalog, folder: Path) -> list[ObjectEntry]:
     """Synthetic problems at smoke size, named like the real objects."""
-    from legs_jax import problem as problem_mod
     from legs_jax import synthetic
+    from legs_jax.core import problem as problem_mod
 
     known = {}
     if catalog is not None:
@@ -186,7 +186,7 @@ def _generated_problems(
     ``folder``; with ``smoke``, the first few at smoke size."""
     import importlib
 
-    from legs_jax import problem as problem_mod
+    from legs_jax.core import problem as problem_mod
 
     known = [n for n, _ in families]
     if requested:

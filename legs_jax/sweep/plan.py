@@ -158,7 +158,7 @@ class ExperimentPlan:
 # ----------------------------------------------------------------------- hparams
 def _method(spec: str):
     """The method named ``spec`` (registered or ``module.path:ATTRIBUTE``)."""
-    from legs_jax import methods
+    from legs_jax.core import methods
     from legs_jax.errors import ConfigError
 
     try:
@@ -169,11 +169,12 @@ def _method(spec: str):
 
 def make_arm(method: str, variant: str, hparams: Mapping[str, Any]) -> Arm:
     """Resolve a declared arm: scalars and equal-length sequences (a grid, zipped),
-    validated by the method's own declaration (:func:`legs_jax.methods.parse_grid`).
+    validated by the method's own declaration
+    (:func:`legs_jax.core.methods.parse_grid`).
     Every grid point holds every hyperparameter column of the results (the
-    method's values, and :func:`legs_jax.methods.column_defaults` for the
+    method's values, and :func:`legs_jax.core.methods.column_defaults` for the
     columns it does not have)."""
-    from legs_jax import methods
+    from legs_jax.core import methods
     from legs_jax.errors import ConfigError
 
     m = _method(method)
@@ -221,7 +222,7 @@ def _pose_bucket(p: int) -> int:
 def _static_config(arm: Arm, P: int, K: int):
     """The arm's method and its static configuration (that of its first grid
     point) on problems of P poses and K grasps."""
-    from legs_jax.methods.base import Config
+    from legs_jax.core.methods.base import Config
 
     m = _method(arm.method)
     point = dict(arm.grid[0])

@@ -35,9 +35,9 @@ CANDIDATES: dict[str, tuple[tuple[int, ...] | None, bool]] = {
 
 def _chunk_programs(plan: ExperimentPlan, c, n_dev: int):
     """(program key, rollouts, rollouts run with the mini-batch padding) of each
-    static group of a chunk, as :func:`legs_jax.engine.run` derives them."""
-    from legs_jax import engine
-    from legs_jax.methods.base import Config
+    static group of a chunk, as :func:`legs_jax.core.engine.run` derives them."""
+    from legs_jax.core import engine
+    from legs_jax.core.methods.base import Config
 
     arm = plan.arms[c.arm]
     m = plan_mod._method(arm.method)

@@ -39,7 +39,7 @@ def _digests_of(path: str, sha256: str, shipped: bool) -> tuple[tuple[str, str],
         found = problemset.array_digests(Path(path))
         if found is not None:
             return tuple(sorted(found.items()))
-    from legs_jax import problem as problem_mod
+    from legs_jax.core import problem as problem_mod
 
     try:
         return tuple(sorted(problem_mod.array_digests(problem_mod.load(path)).items()))
@@ -238,21 +238,29 @@ def _prepare_dir(plan: ExperimentPlan, out: Path, overwrite: bool, leader: bool)
     return d, chash
 
 
+def _manifest(d: Path) -> dict[str, Any] | None:
+    """The manifest of the experiment folder ``d``; None where it is missing or
+    unreadable."""
+    import json
+
+    try:
+        with open(d / "manifest.json") as fh:
+            return json.load(fh)
+    except (OSError, json.JSONDecodeError):
+        return None
+
+
 def _merged_without_chunks(plan: ExperimentPlan, out: Path) -> bool:
     """The experiment's merged tables are complete and current (same problem
     files; :func:`_prepare_dir` has already refused another configuration) but
     some chunk folders are gone, as in a fresh clone of committed results:
     nothing needs recomputing."""
-    import json
-
     d = _exp_dir(out, plan.name)
     chunks_dir = d / "chunks"
     if all(res.chunk_done(chunks_dir, c.id) for c in plan.chunks):
         return False  # the ordinary path re-merges from the chunks
-    try:
-        with open(d / "manifest.json") as fh:
-            old = json.load(fh)
-    except (OSError, json.JSONDecodeError):
+    old = _manifest(d)
+    if old is None:
         return False
     files = old.get("problem_files") or {}
     return (
@@ -292,13 +300,9 @@ def _complete_and_current(plan: ExperimentPlan, out: Path) -> bool:
     """The experiment is complete: manifest of this configuration with status
     complete, its merged tables present and every chunk whole. A run then leaves
     every file as it is."""
-    import json
-
     d = _exp_dir(out, plan.name)
-    try:
-        with open(d / "manifest.json") as fh:
-            old = json.load(fh)
-    except (OSError, json.JSONDecodeError):
+    old = _manifest(d)
+    if old is None:
         return False
     return (
         old.get("status") == "complete"
@@ -343,15 +347,9 @@ def _warn_damaged_tables(plan: ExperimentPlan, out: Path) -> str | None:
     """Name the damaged merged tables of a complete experiment in a warning (they
     are then merged again from the chunks, or the chunks computed again where
     they are gone); returns the reason, or None."""
-    import json
-
     d = _exp_dir(out, plan.name)
-    try:
-        with open(d / "manifest.json") as fh:
-            old = json.load(fh)
-    except (OSError, json.JSONDecodeError):
-        return None
-    if old.get("status") != "complete":
+    old = _manifest(d)
+    if old is None or old.get("status") != "complete":
         return None
     why = _damaged_tables(d, old)
     if why is not None:
@@ -499,7 +497,7 @@ def _grasps_table(plan: ExperimentPlan):
     """Ground truth and prior of trial 0's reservoir of each object (histograms)."""
     import pandas as pd
 
-    from legs_jax import problem as problem_mod
+    from legs_jax.core import problem as problem_mod
 
     frames = []
     for o in plan.objects:

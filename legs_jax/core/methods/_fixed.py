@@ -13,7 +13,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from legs_jax.methods.base import (
+from legs_jax.core.methods.base import (
     Config,
     Ctx,
     argmin_id_of_max,

@@ -12,38 +12,30 @@ deviations (ddof = 1) divided by the square root of the count; NaN for one value
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+import dataclasses
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-import experiments
-from legs_jax.results import HPARAM_COLUMNS
+from legs_jax.results import hparam_columns
 
 __all__ = [
-    "ARM_LABELS",
     "BOUNDS",
-    "COMPETITORS",
-    "HPARAM_COLUMNS",
-    "METHODS",
-    "PROPOSED",
     "SET_LABELS",
     "WIN_TOLERANCE",
     "AnalysisError",
+    "Arms",
     "active_set_trace",
-    "arm_declaration",
     "oracle_methods",
-    "arm_label",
-    "arms_of",
     "bound_summary",
     "curve_summary",
-    "first_legs_rollout",
+    "first_rollout",
     "learning_curves",
     "object_gaps",
     "order_sets",
     "select_arm",
-    "sort_arms",
     "stopping_sensitivity",
     "sweep_table",
     "table_one",
@@ -51,53 +43,98 @@ __all__ = [
     "winners",
 ]
 
-_MAIN = experiments.get("main")
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class Arms:
+    """How an experiment orders, labels and compares its arms: its declarations,
+    which an experiment's analysis passes to the functions here (the library
+    knows no experiment).
 
-def _table_order() -> tuple[str, ...]:
-    from legs_jax import methods
+    ``order`` is Table I's column order (the registry's other methods follow, a
+    user's method included); ``declared`` the methods the experiment runs;
+    ``variants`` maps (method, variant) to the variant's ``label``,
+    ``short_label`` and ``style`` (a method's own are on its card);
+    ``proposed`` the method the paper proposes (the subject of the win counts).
+    """
 
-    rest = tuple(m for m in methods.names() if m not in _MAIN.TABLE_ORDER)
-    return tuple(_MAIN.TABLE_ORDER) + rest
-
-
-def _competitors() -> tuple[str, ...]:
-    from legs_jax import methods
-
-    declared = {m for m, _, _ in _MAIN.ARMS}
-    return tuple(
-        m
-        for m in _MAIN.TABLE_ORDER
-        if m in declared and m in methods.names() and not methods.get(m).card.oracle
+    order: tuple[str, ...] = ()
+    declared: tuple[str, ...] = ()
+    variants: Mapping[tuple[str, str], Mapping[str, Any]] = dataclasses.field(
+        default_factory=dict
     )
+    proposed: str = ""
+
+    @property
+    def methods(self) -> tuple[str, ...]:
+        """Every method in table order: ``order``, then the registry's others."""
+        from legs_jax.core import methods
+
+        return tuple(self.order) + tuple(
+            m for m in methods.names() if m not in self.order
+        )
+
+    @property
+    def competitors(self) -> tuple[str, ...]:
+        """Methods compared for a "win" (SPEC §5): those of ``order`` the
+        experiment declares, but not an oracle row (the K=100 upper bound);
+        extra rows (Bayes-UCB, a user's method) are shown but do not compete, so
+        the counts keep the paper's definition."""
+        from legs_jax.core import methods
+
+        return tuple(
+            m
+            for m in self.order
+            if m in self.declared
+            and m in methods.names()
+            and not methods.get(m).card.oracle
+        )
+
+    def declaration(self, method: str, variant: str = "") -> dict:
+        """``label``, ``short_label`` and ``style`` of an arm: a declared
+        variant's, else its method's (:mod:`legs_jax.core.methods`); empty for an
+        unknown method."""
+        from legs_jax.core import methods
+
+        if (method, variant) in self.variants:
+            return dict(self.variants[(method, variant)])
+        if variant or method not in methods.names():
+            return {}
+        card = methods.get(method).card
+        return dict(
+            label=card.label, short_label=card.short_label, style=dict(card.style)
+        )
+
+    def label(self, method: str, variant: str = "") -> str:
+        """Display name of an arm (its declared label); an unknown variant is
+        shown in brackets after its method's label."""
+        label = self.declaration(method, variant).get("label")
+        if label:
+            return label
+        base = self.declaration(method).get("label") or method
+        return f"{base} [{variant}]" if variant else base
+
+    def rank(self, method: str, variant: str) -> tuple[int, int, str]:
+        order = self.methods
+        m = order.index(method) if method in order else len(order)
+        return (m, 0 if variant == "" else 1, variant)
+
+    def sort(self, arms: Iterable[tuple[str, str]]) -> list[tuple[str, str]]:
+        """(method, variant) pairs, unique, in table order (variants after their
+        method's default)."""
+        return sorted(set(arms), key=lambda a: (self.rank(*a), a[0]))
+
+    def of_table(self, df: pd.DataFrame) -> list[tuple[str, str]]:
+        """The arms present in a table with ``method`` and ``variant`` columns."""
+        return self.sort(zip(df["method"], df["variant"], strict=True))
 
 
-def _arm_labels() -> dict[tuple[str, str], str]:
-    from legs_jax import methods
-
-    out = {(m, ""): methods.get(m).card.label or m for m in methods.names()}
-    out.update({arm: v["label"] for arm, v in _MAIN.VARIANTS.items()})
-    return out
-
-
-# Methods in the column order of the paper's Table I, then every other one.
-METHODS = _table_order()
-# Methods compared for a "win" (SPEC §5): the paper's columns of Table I that the
-# main experiment declares, but not an oracle row (the K=100 upper bound); extra
-# rows (Bayes-UCB, a user's method) are shown but do not compete, so the counts
-# keep the paper's definition.
-COMPETITORS = _competitors()
 WIN_TOLERANCE = 0.005
-
-ARM_LABELS = _arm_labels()
 SET_LABELS = {"dexnet_adv": "Dex-Net Adversarial", "egad_eval": "EGAD! evaluation"}
-
-PROPOSED = _MAIN.PROPOSED  # the method the paper proposes (LEGS)
 
 # Lower bounds of the stopping rule: name -> checks column. "all" is the paper's
 # formula (p-hat* over all candidates), "attempted" the variant over attempted
 # grasps only (SPEC §5), "ours" the Dirichlet bound on an empirical-Bayes posterior
-# of the recommended grasps (legs_jax.stopping).
+# of the recommended grasps (legs_jax.core.stopping).
 BOUNDS = {"all": "p_lower", "attempted": "p_lower_attempted", "ours": "p_lower_eb"}
 
 _RUN_KEYS = ["object", "trial", "rollout"]
@@ -113,7 +150,7 @@ PRIOR_WORDS = {
 
 def prior_kind(res: Any, experiment: str = "main") -> str:
     """The prior of an experiment's problems, from its manifest (``res``: a
-    :class:`legs_jax.figures.Results`): "learned", "synthetic", several joined
+    :class:`legs_jax.report.figures.Results`): "learned", "synthetic", several joined
     by "+", or "unknown" (results from before the manifests said)."""
     kinds = res.manifest(experiment).get("priors") or []
     return "+".join(kinds) if kinds else "unknown"
@@ -131,35 +168,9 @@ class AnalysisError(ValueError):
 # ------------------------------------------------------------------------ helpers
 def oracle_methods() -> tuple[str, ...]:
     """The registered methods that are oracle rows (never compared or bolded)."""
-    from legs_jax import methods
+    from legs_jax.core import methods
 
     return tuple(m for m in methods.names() if methods.get(m).card.oracle)
-
-
-def arm_declaration(method: str, variant: str = "") -> dict:
-    """``label``, ``short_label`` and ``style`` of an arm: a declared variant's
-    (the experiment declarations), else its method's (:mod:`legs_jax.methods`);
-    empty for an unknown method."""
-    from legs_jax import methods
-
-    if (method, variant) in _MAIN.VARIANTS:
-        return dict(_MAIN.VARIANTS[(method, variant)])
-    if method not in methods.names():
-        return {}
-    m = methods.get(method)
-    return dict(
-        label=m.card.label, short_label=m.card.short_label, style=dict(m.card.style)
-    )
-
-
-def arm_label(method: str, variant: str = "") -> str:
-    """Display name of an arm (the method's declared label, a declared variant's
-    label); unknown variants are shown in brackets."""
-    labels = _arm_labels()  # a user's method may have joined the registry
-    if (method, variant) in labels:
-        return labels[(method, variant)]
-    base = labels.get((method, ""), method)
-    return f"{base} [{variant}]" if variant else base
 
 
 def _require(df: pd.DataFrame, columns: Iterable[str], what: str) -> None:
@@ -182,23 +193,6 @@ def order_sets(sets: Iterable[str]) -> list[str]:
     return known + sorted(s for s in sets if s not in SET_LABELS)
 
 
-def _arm_rank(method: str, variant: str) -> tuple[int, int, str]:
-    order = _table_order()  # a user's method may have joined the registry
-    m = order.index(method) if method in order else len(order)
-    return (m, 0 if variant == "" else 1, variant)
-
-
-def sort_arms(arms: Iterable[tuple[str, str]]) -> list[tuple[str, str]]:
-    """(method, variant) pairs, unique, in Table I order (variants after their
-    method's default)."""
-    return sorted(set(arms), key=lambda a: (_arm_rank(*a), a[0]))
-
-
-def arms_of(df: pd.DataFrame) -> list[tuple[str, str]]:
-    """The arms present in a table with ``method`` and ``variant`` columns."""
-    return sort_arms(zip(df["method"], df["variant"], strict=True))
-
-
 def select_arm(
     df: pd.DataFrame,
     method: str,
@@ -215,7 +209,7 @@ def select_arm(
         _require(df, [name], "the table")
         sel &= np.isclose(df[name].to_numpy(np.float64), float(value))
     out = df.loc[sel]
-    hp = [c for c in HPARAM_COLUMNS if c in out.columns and c not in vary]
+    hp = [c for c in hparam_columns() if c in out.columns and c not in vary]
     if hp and len(out) and len(out[hp].drop_duplicates()) > 1:
         raise AnalysisError(
             f"rows of {method!r} (variant {variant!r}) hold several hyperparameter "
@@ -225,7 +219,7 @@ def select_arm(
 
 
 # ------------------------------------------------------------------------ Table I
-def object_gaps(runs: pd.DataFrame) -> pd.DataFrame:
+def object_gaps(runs: pd.DataFrame, arms: Arms) -> pd.DataFrame:
     """Per object and arm: mean and standard error of the final gap over its runs.
 
     Returns columns ``set, object, method, variant, n_runs, gap_mean, gap_se``,
@@ -239,7 +233,7 @@ def object_gaps(runs: pd.DataFrame) -> pd.DataFrame:
     )
     if runs.empty:
         raise AnalysisError("runs.parquet has no rows")
-    hp = [c for c in HPARAM_COLUMNS if c in runs.columns]
+    hp = [c for c in hparam_columns() if c in runs.columns]
     if hp:
         n_cfg = runs.groupby(["object", "method", "variant"], sort=False)[hp].apply(
             lambda g: len(g.drop_duplicates())
@@ -268,7 +262,7 @@ def object_gaps(runs: pd.DataFrame) -> pd.DataFrame:
             "s": out["set"].map(set_rank),
             "o": out["object"].map(obj_rank),
             "a": [
-                _arm_rank(m, v)
+                arms.rank(m, v)
                 for m, v in zip(out["method"], out["variant"], strict=True)
             ],
         }
@@ -277,7 +271,7 @@ def object_gaps(runs: pd.DataFrame) -> pd.DataFrame:
     return out.iloc[idx].reset_index(drop=True)
 
 
-def table_one(gaps: pd.DataFrame) -> pd.DataFrame:
+def table_one(gaps: pd.DataFrame, arms: Arms) -> pd.DataFrame:
     """Table I from ``object_gaps``: per set and arm, the mean and standard error
     across objects of the per-object mean final gap.
 
@@ -286,7 +280,7 @@ def table_one(gaps: pd.DataFrame) -> pd.DataFrame:
     rows = []
     for set_ in order_sets(gaps["set"]):
         g = gaps[gaps["set"] == set_]
-        for method, variant in arms_of(g):
+        for method, variant in arms.of_table(g):
             v = g.loc[
                 (g["method"] == method) & (g["variant"] == variant), "gap_mean"
             ].to_numpy(np.float64)
@@ -298,8 +292,8 @@ def table_one(gaps: pd.DataFrame) -> pd.DataFrame:
 
 def winners(
     gaps: pd.DataFrame,
+    competitors: Sequence[str],
     tolerance: float = WIN_TOLERANCE,
-    competitors: Sequence[str] = COMPETITORS,
 ) -> pd.DataFrame:
     """Per object, which methods "win" (SPEC §5): a method wins an object when its
     mean final gap is at most every other competitor's + ``tolerance``.
@@ -326,12 +320,12 @@ def winners(
 
 def win_counts(
     gaps: pd.DataFrame,
+    competitors: Sequence[str],
     tolerance: float = WIN_TOLERANCE,
-    competitors: Sequence[str] = COMPETITORS,
 ) -> pd.DataFrame:
     """Wins per set and competitor: ``set, method, wins, n_objects`` (objects that
     have every competitor), with ``n_total`` the objects of the set in ``gaps``."""
-    w = winners(gaps, tolerance, competitors)
+    w = winners(gaps, competitors, tolerance)
     rows = []
     for set_ in order_sets(gaps["set"]):
         n_total = int(gaps.loc[gaps["set"] == set_, "object"].nunique())
@@ -451,7 +445,7 @@ def sweep_table(runs: pd.DataFrame, param: str) -> pd.DataFrame:
 
 
 # ---------------------------------------------------------------- case study
-def learning_curves(curves: pd.DataFrame, obj: str) -> pd.DataFrame:
+def learning_curves(curves: pd.DataFrame, obj: str, arms: Arms) -> pd.DataFrame:
     """Learning curves of every arm on one object: ``method, variant, step,
     gap_mean, gap_se, n_runs`` in Table I arm order and step order."""
     _require(
@@ -461,7 +455,7 @@ def learning_curves(curves: pd.DataFrame, obj: str) -> pd.DataFrame:
     )
     c = curves[curves["object"] == obj]
     out = []
-    for method, variant in arms_of(c):
+    for method, variant in arms.of_table(c):
         g = select_arm(c, method, variant).sort_values("step")
         out.append(g)
     if not out:
@@ -488,12 +482,12 @@ def curve_summary(lc: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["method", "variant", "final", "area"])
 
 
-def first_legs_rollout(active_set: pd.DataFrame) -> pd.DataFrame:
-    """The rows of LEGS's first grid point, trial and rollout (the one rollout
-    whose active sets are recorded)."""
+def first_rollout(active_set: pd.DataFrame, method: str) -> pd.DataFrame:
+    """The rows of ``method``'s first grid point, trial and rollout (the one
+    rollout whose active sets are recorded)."""
     a = active_set
     if "method" in a.columns:
-        a = a[a["method"] == experiments.get("case_study").ACTIVE_SET_METHODS[0]]
+        a = a[a["method"] == method]
     if "grid_index" in a.columns and len(a):
         a = a[a["grid_index"] == a["grid_index"].min()]
     for c in ("trial", "rollout"):
@@ -505,10 +499,12 @@ def first_legs_rollout(active_set: pd.DataFrame) -> pd.DataFrame:
 def active_set_trace(
     active_set: pd.DataFrame,
     obj: str,
+    method: str,
     pose: int | None = None,
     grasps: pd.DataFrame | None = None,
 ) -> tuple[int, pd.DataFrame, pd.DataFrame]:
-    """The active set of one LEGS rollout on one pose over time (Fig. 1, bottom).
+    """The active set of one rollout of ``method`` on one pose over time (Fig. 1,
+    bottom; :func:`first_rollout`).
 
     ``pose`` defaults to the pose whose active set changed most (most distinct
     members over the run) among the poses present at no fewer than half as many
@@ -520,9 +516,9 @@ def active_set_trace(
     of the pose's reservoir) when ``grasps`` is given.
     """
     _require(active_set, ["object", "step", "pose", "slot", "robustness"], "active_set")
-    a = first_legs_rollout(active_set[active_set["object"] == obj])
+    a = first_rollout(active_set[active_set["object"] == obj], method)
     if a.empty:
-        raise AnalysisError(f"active_set.parquet has no LEGS rows for {obj!r}")
+        raise AnalysisError(f"active_set.parquet has no {method} rows for {obj!r}")
     if pose is None:
         n_checks = a.groupby("pose")["step"].nunique()
         landing = pd.Series(0.0, index=n_checks.index)

@@ -7,9 +7,10 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-from legs_jax import reference as ref
-from legs_jax.methods.base import (
+from legs_jax.core import reference as ref
+from legs_jax.core.methods.base import (
     UNIT,
     Card,
     Config,
@@ -89,6 +90,30 @@ def candidates(st: TQLState, ctx: Ctx, cfg: Config):
     return ctx.tables.valid[ctx.ot]
 
 
+class Reference(ref.ReferenceMethod):
+    """Tabular one-step Q-learning, ε-greedy: Q ← Q + η (r − Q), Q₀ = q."""
+
+    def __init__(self, problem, trial, hp):
+        super().__init__(problem, trial, hp)
+        self.Q = self.q.copy()  # [P, K]
+
+    def select(self, s: int, rng: np.random.Generator) -> int:
+        if rng.random() < self.hp["epsilon"]:
+            idx = np.flatnonzero(self.valid[s])  # explore: uniform over valid
+            return int(idx[rng.integers(idx.size)])
+        return ref.masked_argmax(self.Q[s], self.cand[s])
+
+    def update(self, s: int, a: int, r: bool) -> None:
+        super().update(s, a, r)
+        self.Q[s, a] += self.hp["eta"] * (float(r) - self.Q[s, a])
+
+    def _score(self) -> np.ndarray:
+        return self.Q
+
+    def _recommend_pose(self, s: int) -> int:
+        return ref.masked_argmax(self.Q[s], self.cand[s])
+
+
 METHOD = Method(
     name="tql",
     description="Tabular Q-learning, ε-greedy over all K grasps",
@@ -110,6 +135,6 @@ METHOD = Method(
         style=dict(color="#9467bd", ls="-", lw=1.6),
         cost=lambda cfg: cfg.num_grasps / 8.0,  # no sampling: a masked argmax
         dense=True,
-        reference=ref.TQL,
+        reference=Reference,
     ),
 )

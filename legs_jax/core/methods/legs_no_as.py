@@ -3,9 +3,11 @@ every n steps (the pose just grasped), with no refill."""
 
 from typing import NamedTuple
 
-from legs_jax import reference as ref
-from legs_jax.methods import _dense
-from legs_jax.methods.base import (
+import numpy as np
+
+from legs_jax.core import reference as ref
+from legs_jax.core.methods import _dense
+from legs_jax.core.methods.base import (
     COUNT,
     PRIOR_RANGES,
     UNIT_OPEN,
@@ -21,6 +23,26 @@ class LegsNoASHParams(NamedTuple):
     delta: float = 0.05  # confidence of the pruning bounds
     gamma: float = 0.2  # global threshold
     n: int = 100  # pruning period (static)
+
+
+class Reference(ref.BetaMethod):
+    """LEGS(-AS): Thompson sampling over all K minus the removed grasps."""
+
+    def _prune_set(self, s: int) -> np.ndarray:
+        """[K] bool, the LEGS removal set of pose s
+        (:func:`legs_jax.core.reference.legs_prune`)."""
+        hp = self.hp
+        args = (self.alpha[s], self.beta[s], self.attempted[s], self.cand[s])
+        return ref.legs_prune(*args, hp["delta"], hp["gamma"])
+
+    def after_step(self, t: int, s: int) -> None:
+        if t % self.hp["n"] != 0:
+            return
+        removed = self._prune_set(s)
+        self.cand[s] &= ~removed
+        self.replacements += int(removed.sum())
+        self.removal_log += [(t, s, int(g)) for g in np.flatnonzero(removed)]
+        self._dirty[s] = True
 
 
 METHOD = Method(
@@ -39,6 +61,6 @@ METHOD = Method(
         short_label="LEGS(-AS)",
         style=dict(color="#1f77b4", ls="-", lw=1.6),
         dense=True,
-        reference=ref.LegsNoAS,
+        reference=Reference,
     ),
 )

@@ -2,7 +2,7 @@
 
 One engine owns the loop (a nested ``lax.scan``: checks → blocks of steps → steps),
 the environment of SPEC §2, the masks, the metrics of SPEC §5 and the counters;
-the methods (:mod:`legs_jax.methods`) are small pure functions over their own
+the methods (:mod:`legs_jax.core.methods`) are small pure functions over their own
 state. Every step is written with an explicit batch axis B (one row per rollout)
 and gathers only the current pose's row of the method's state.
 
@@ -37,13 +37,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from legs_jax import _programs, sampling, stopping
-from legs_jax import keys as keys_mod
-from legs_jax import methods as methods_mod
-from legs_jax.constants import DELTA_STOP, NUM_DIRICHLET_SAMPLES
+from legs_jax.core import _programs, sampling, stopping
+from legs_jax.core import keys as keys_mod
+from legs_jax.core import methods as methods_mod
+from legs_jax.core.constants import DELTA_STOP, NUM_DIRICHLET_SAMPLES
+from legs_jax.core.methods.base import Config, Ctx, Method, Tables
+from legs_jax.core.problem import ProblemBatch
 from legs_jax.errors import ConfigError
-from legs_jax.methods.base import Config, Ctx, Method, Tables
-from legs_jax.problem import ProblemBatch
 
 __all__ = [
     "DELTA_STOP",
@@ -89,7 +89,7 @@ class RunResult(NamedTuple):
     check_p_lower_attempted: np.ndarray  # [G, O, T, R, C2] f32 (attempted only)
     check_true_performance: np.ndarray  # [G, O, T, R, C2] f32
     active_set: np.ndarray | None  # [G, O, T, R, C2, P, k] i32 grasp ids, -1 empty
-    # [G, O, T, R, C2] f32 our bound (legs_jax.stopping); NaN for a method
+    # [G, O, T, R, C2] f32 our bound (legs_jax.core.stopping); NaN for a method
     # without per-grasp counts
     check_p_lower_eb: np.ndarray | None = None
 
@@ -206,11 +206,11 @@ def dirichlet_quantiles(
     for V value vectors scored on the same M samples (SPEC §5).
 
     The Dirichlet draws are exact (normalised Gamma draws from
-    :func:`legs_jax.sampling.gamma_bins`, keyed by pose, so that padding a batch
+    :func:`legs_jax.core.sampling.gamma_bins`, keyed by pose, so that padding a batch
     with more poses changes no bound); unobserved poses get no bin, the one
     "unseen" bin has value 0. The quantile interpolates linearly between order
     statistics, as ``np.quantile`` does; only the two order statistics needed are
-    selected (:func:`legs_jax.sampling.order_statistics`), not a full sort.
+    selected (:func:`legs_jax.core.sampling.order_statistics`), not a full sort.
 
     Args:
       keys: [B] keys (consumed).
@@ -218,7 +218,7 @@ def dirichlet_quantiles(
       observed: [B, P] bool.
       values: [B, V, P] p̂*_s per value vector.
       draws: optional [B, M, P] values drawn per sample (our bound,
-        :mod:`legs_jax.stopping`), scored on the same λ' as one more row.
+        :mod:`legs_jax.core.stopping`), scored on the same λ' as one more row.
     Returns:
       [B, V] f32 bounds p̂_ℓ ([B, V + 1] with ``draws``, theirs last).
     """
@@ -302,7 +302,7 @@ def dirichlet_checks(
     variants (p̂* over all candidates, over attempted ones) use the same samples.
     Adds ``check_p_lower`` and ``check_p_lower_attempted`` [B, C2] (NaN when the
     attempted values are absent) and removes the inputs. With ``check_eb_post``
-    (the empirical-Bayes posteriors of :func:`legs_jax.stopping.eb_posterior`,
+    (the empirical-Bayes posteriors of :func:`legs_jax.core.stopping.eb_posterior`,
     [B, C2, P, GRID]) it also adds our bound ``check_p_lower_eb`` [B, C2] on the
     same λ' draws (NaN rows of the input give NaN).
     """
@@ -452,10 +452,10 @@ def simulate(
     Args:
       tables: problem data of N (object, trial) pairs (:func:`make_tables`).
       ot: [B] i32 row of ``tables`` of each rollout.
-      rollout_keys: [B] typed keys from :func:`legs_jax.keys.rollout_keys`.
+      rollout_keys: [B] typed keys from :func:`legs_jax.core.keys.rollout_keys`.
       hp: the method's traced hyperparameters (``method.traced_hparams``), each
         [B].
-      method: a :class:`legs_jax.methods.base.Method`; cfg, horizon,
+      method: a :class:`legs_jax.core.methods.base.Method`; cfg, horizon,
         record_every, check_every: static.
       attempted_variant: also compute the Dirichlet bound over attempted grasps.
       record_active_set: return the active set at each check.
@@ -736,13 +736,13 @@ def compiled(
 ) -> Callable:
     """The jitted :func:`simulate` for one static configuration (cached).
 
-    ``method`` is a :class:`Method` or a name (:func:`legs_jax.methods.resolve`).
+    ``method`` is a :class:`Method` or a name (:func:`legs_jax.core.methods.resolve`).
     Returns ``f(tables, ot, rollout_keys, hp) -> dict``. With ``grid=True`` the
     function is ``jit(vmap(simulate))`` over a leading axis G of ``rollout_keys``
     [G, B] and of every ``hp`` leaf [G, B]. With several ``devices`` the batch axis
     is sharded over them (``shard_map``); the tables are replicated. With
     ``raw_keys`` the keys come as their raw uint32 words [..., 2]
-    (:func:`legs_jax.keys.rollout_key_data`).
+    (:func:`legs_jax.core.keys.rollout_key_data`).
     """
     m = methods_mod.resolve(method)
     fn = functools.partial(
@@ -848,9 +848,9 @@ def run(
     """Run ``method`` on every object and trial of ``batch``, R rollouts each.
 
     Args:
-      batch: the problems (:func:`legs_jax.problem.stack`), axes [O, T, P, K].
-      method: a :class:`legs_jax.methods.base.Method`, a registered name
-        (:func:`legs_jax.methods.names`) or ``module.path:ATTRIBUTE``.
+      batch: the problems (:func:`legs_jax.core.problem.stack`), axes [O, T, P, K].
+      method: a :class:`legs_jax.core.methods.base.Method`, a registered name
+        (:func:`legs_jax.core.methods.names`) or ``module.path:ATTRIBUTE``.
       object_ids: [O] stable integer id of each object (seeds its rollouts).
       trials: indices into the batch's T axis (default: all).
       num_rollouts: R.
@@ -887,7 +887,7 @@ def run(
     # ---------------------------------------------------------------- validation
     if not isinstance(batch, ProblemBatch):
         raise ConfigError(
-            f"batch must be a legs_jax.problem.ProblemBatch (see stack()), "
+            f"batch must be a legs_jax.core.problem.ProblemBatch (see stack()), "
             f"got {type(batch).__name__}"
         )
     O, T_all, P, K = batch.shape

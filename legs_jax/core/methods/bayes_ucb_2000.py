@@ -12,7 +12,7 @@ the one untried grasp whose prior dominates the other untried ones. The choice
 is deterministic: no random draw. Recommendation, learning and the stopping
 estimates are those of BORGES.
 :func:`make` builds it over every grasp or over the fixed top by prior
-(:mod:`legs_jax.methods.bayes_ucb_100`); :class:`Reference` is its NumPy twin.
+(:mod:`legs_jax.core.methods.bayes_ucb_100`); :class:`Reference` is its NumPy twin.
 """
 
 from __future__ import annotations
@@ -23,10 +23,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from legs_jax import reference as ref
-from legs_jax import sampling
-from legs_jax.methods import _dense, _slots
-from legs_jax.methods.base import (
+from legs_jax.core import reference as ref
+from legs_jax.core import sampling
+from legs_jax.core.methods import _dense, _slots
+from legs_jax.core.methods.base import (
     TOP_FIXED,
     Card,
     Method,
@@ -87,7 +87,7 @@ def choose_few(lv, a, b, mask, attempted) -> jax.Array:
 
     The candidates are packed, in id order, into blocks of ``FEW`` a row and their
     quantiles computed block by block until every row's are done; each value is
-    the one the dense computation gets (:func:`legs_jax.sampling.beta_ppf` gives an
+    the one the dense computation gets (:func:`legs_jax.core.sampling.beta_ppf` gives an
     element a value that depends on its own (q, α, β) only), and ties go to the
     lowest id. The choice equals the dense one's whenever the float32 quantile
     is monotone across the untried arms (see README, Bayes-UCB).

@@ -1,86 +1,28 @@
 """Conformance checks every method passes, ours and the user's.
 
-:func:`check_declaration` looks at a :class:`~legs_jax.methods.base.Method`
-without running it (the functions are callables, the hyperparameters a NamedTuple
-with defaults inside their declared ranges, the static ones among them);
-:func:`check` runs it on a small synthetic problem with padded poses and grasps,
-invalid grasps and a pose without any valid grasp, under ``jit`` and under
-``jit(vmap)`` over a grid of hyperparameters, and checks that one program serves
-new keys and values (it compiles once), that it never selects a masked grasp or
-one outside its own candidate set, and that its outputs are finite and its
-counters consistent. :func:`legs_jax.methods.resolve` runs the first on a method
-from the user's module; the sweep runs both.
+:func:`legs_jax.core.methods.base.check_declaration` looks at a
+:class:`~legs_jax.core.methods.base.Method` without running it (the functions are
+callables, the hyperparameters a NamedTuple with defaults inside their declared
+ranges, the static ones among them); :func:`check` runs it on a small synthetic
+problem with padded poses and grasps, invalid grasps and a pose without any valid
+grasp, under ``jit`` and under ``jit(vmap)`` over a grid of hyperparameters, and
+checks that one program serves new keys and values (it compiles once), that it never
+selects a masked grasp or one outside its own candidate set, and that its outputs
+are finite and its counters consistent. :func:`legs_jax.core.methods.resolve` runs the
+first on a method from the user's module; the sweep runs both.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
-import math
-from typing import Any
 
 import numpy as np
 
+from legs_jax.core.methods.base import Method, check_declaration
 from legs_jax.errors import ConfigError
-from legs_jax.methods.base import Card, Method
 
-__all__ = ["check", "check_declaration"]
-
-_FUNCTIONS = (
-    "init",
-    "select",
-    "update",
-    "recommend",
-    "recommend_init",
-    "estimates",
-    "candidates",
-)
-
-
-def check_declaration(method: Any, where: str = "") -> None:
-    """Refuse a malformed method declaration with a :class:`ConfigError`."""
-    at = f"method {where or getattr(method, 'name', method)!r}"
-    if not isinstance(method, Method):
-        raise ConfigError(
-            f"{at} is a {type(method).__name__}, not a legs_jax.methods.base.Method"
-        )
-    if not isinstance(method.name, str) or not method.name.isidentifier():
-        raise ConfigError(f"{at}: its name must be an identifier, got {method.name!r}")
-    for f in _FUNCTIONS:
-        if not callable(getattr(method, f)):
-            raise ConfigError(f"{at}: {f} is not callable")
-    if not isinstance(method.card, Card):
-        raise ConfigError(f"{at}: card must be a legs_jax.methods.base.Card")
-    optional = ("prune", "prune_due", "active_set", "recommend_updated", "check")
-    for f, v in [(f, getattr(method, f)) for f in optional] + [
-        ("card.reference", method.card.reference)
-    ]:
-        if v is not None and not callable(v):
-            raise ConfigError(f"{at}: {f} must be callable or None")
-    if method.prune is not None and method.prune_due is None:
-        raise ConfigError(f"{at}: prune needs prune_due, its schedule")
-    if not callable(method.active_width):
-        raise ConfigError(f"{at}: active_width is not callable")
-    hp = method.hparams
-    fields = getattr(hp, "_fields", None)
-    if not isinstance(hp, type) or fields is None:
-        raise ConfigError(f"{at}: hparams must be a NamedTuple class")
-    missing = [n for n in fields if n not in hp._field_defaults]
-    if missing:
-        raise ConfigError(f"{at}: hyperparameter(s) without a default: {missing}")
-    for n in list(method.ranges) + list(method.static):
-        if n not in fields:
-            raise ConfigError(f"{at}: {n} is not a field of {hp.__name__}")
-    for n, v in hp._field_defaults.items():
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise ConfigError(f"{at}: the default of {n} must be a number, got {v!r}")
-        rng = method.ranges.get(n)
-        if not math.isfinite(v) or (rng is not None and not rng.contains(v)):
-            raise ConfigError(f"{at}: the default {n} = {v!r} is outside its range")
-    for n in method.static:
-        rng = method.ranges.get(n)
-        if rng is None or not rng.integer:
-            raise ConfigError(f"{at}: static {n} needs an integer range")
+__all__ = ["check"]
 
 
 @functools.cache
@@ -90,8 +32,8 @@ def _setup():
     import jax
     import jax.numpy as jnp
 
-    from legs_jax import engine
-    from legs_jax.problem import stack
+    from legs_jax.core import engine
+    from legs_jax.core.problem import stack
     from legs_jax.synthetic import make_problem
 
     pb = make_problem(
@@ -120,8 +62,8 @@ def check(method: Method, horizon: int = 120, rollouts: int = 8) -> None:
     import jax
     import jax.numpy as jnp
 
-    from legs_jax import engine, keys
-    from legs_jax.methods.base import Config
+    from legs_jax.core import engine, keys
+    from legs_jax.core.methods.base import Config
 
     check_declaration(method)
     tables = _setup()

@@ -5,9 +5,9 @@ Beta posterior of all K grasps (learning only from the fixed grasp) serves the
 Dirichlet check.
 """
 
-from legs_jax import reference as ref
-from legs_jax.methods import _fixed
-from legs_jax.methods.base import Card, Method
+from legs_jax.core import reference as ref
+from legs_jax.core.methods import _fixed
+from legs_jax.core.methods.base import Card, Method
 
 METHOD = Method(
     name="dexnet",

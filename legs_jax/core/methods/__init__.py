@@ -1,13 +1,13 @@
 """The registry of exploration methods (SPEC §4): the one list of them.
 
 Each method lives in its own module of this folder that defines ``METHOD``, a
-:class:`legs_jax.methods.base.Method` declaring its algorithm (functions,
-hyperparameters, pruning schedule) and its :class:`~legs_jax.methods.base.Card`
+:class:`legs_jax.core.methods.base.Method` declaring its algorithm (functions,
+hyperparameters, pruning schedule) and its :class:`~legs_jax.core.methods.base.Card`
 (labels, style, costs); a new module is found without being listed. Everything else
 (the engine, the NumPy reference, the sweep, the benchmark, the analysis and the
 figures) asks this registry. A method from outside
 the package is named ``my_pkg.my_module:METHOD`` (:func:`resolve`) and passes the
-same conformance checks as ours (:mod:`legs_jax.methods.conformance`).
+same conformance checks as ours (:mod:`legs_jax.core.methods.conformance`).
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from legs_jax.core.methods.base import Method, check_declaration
 from legs_jax.errors import ConfigError
-from legs_jax.methods.base import Method
 
 __all__ = [
     "DEFAULT",
@@ -69,7 +69,7 @@ def register(method: Method) -> Method:
     """Add ``method`` under ``method.name`` (replacing one of the same name)."""
     if not isinstance(method, Method):
         raise ConfigError(
-            f"a method must be a legs_jax.methods.base.Method, got "
+            f"a method must be a legs_jax.core.methods.base.Method, got "
             f"{type(method).__name__}"
         )
     _REGISTRY[method.name] = method
@@ -79,7 +79,7 @@ def register(method: Method) -> Method:
 def _load() -> None:
     for mod in _MODULES:
         if mod not in _REGISTRY:
-            register(importlib.import_module(f"legs_jax.methods.{mod}").METHOD)
+            register(importlib.import_module(f"legs_jax.core.methods.{mod}").METHOD)
 
 
 def get(name: str) -> Method:
@@ -98,7 +98,7 @@ def resolve(spec: str | Method) -> Method:
     """A method from its registered name, from ``module.path:ATTRIBUTE`` (a
     method in the user's own module, imported and registered under its name), or
     a :class:`Method` itself. A method from outside the registry is checked first
-    (:func:`legs_jax.methods.conformance.check_declaration`)."""
+    (:func:`legs_jax.core.methods.base.check_declaration`)."""
     if isinstance(spec, Method):
         return spec
     if not isinstance(spec, str):
@@ -120,9 +120,7 @@ def resolve(spec: str | Method) -> Method:
     method = getattr(mod, attr, None)
     if method is None:
         raise ConfigError(f"method '{spec}': {module} has no attribute {attr}")
-    from legs_jax.methods import conformance
-
-    conformance.check_declaration(method, where=spec)
+    check_declaration(method, where=spec)
     known = _REGISTRY.get(method.name)
     if known is not None and known is not method:
         raise ConfigError(
@@ -138,13 +136,14 @@ def builtin(name: str) -> bool:
 
 
 def column_defaults() -> dict[str, float | int]:
-    """The hyperparameter columns every result row carries and the value each
-    holds for a method that does not have that hyperparameter: every
-    hyperparameter of this package's methods, with the default of the first
+    """The hyperparameter columns every result row carries, in their order, and
+    the value each holds for a method that does not have that hyperparameter:
+    every hyperparameter of this package's methods, those of :data:`DEFAULT`
+    first, then the others in registry order, with the default of the first
     method declaring it. (A user's method adds its own columns to its rows.)"""
     _load()
     out: dict[str, float | int] = {}
-    for name in _MODULES:
+    for name in (DEFAULT, *_MODULES):
         for hp, value in _REGISTRY[name].defaults().items():
             out.setdefault(hp, value)
     return out

@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from legs_jax import sampling
+from legs_jax.core import sampling
 
 __all__ = [
     "ENV_STREAM",

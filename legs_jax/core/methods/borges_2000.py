@@ -1,8 +1,8 @@
 """BORGES (K=2000): Thompson sampling over every grasp of the pose (SPEC §4)."""
 
-from legs_jax import reference as ref
-from legs_jax.methods import _dense
-from legs_jax.methods.base import Card, Method
+from legs_jax.core import reference as ref
+from legs_jax.core.methods import _dense
+from legs_jax.core.methods.base import Card, Method
 
 METHOD = Method(
     name="borges_2000",

@@ -2,7 +2,7 @@
 
 A method is a :class:`Method`: a few pure functions over its own state, each taking
 and returning arrays with an explicit leading batch axis B (one row per rollout).
-The engine (:mod:`legs_jax.engine`) owns the loop, the environment, the masks of
+The engine (:mod:`legs_jax.core.engine`) owns the loop, the environment, the masks of
 padding and empty poses, the metrics and the counters; a method only chooses,
 learns, prunes and recommends.
 
@@ -23,8 +23,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from legs_jax import sampling
-from legs_jax.constants import Q_CLIP, TOP_FIXED
+from legs_jax.core import sampling
+from legs_jax.core.constants import Q_CLIP, TOP_FIXED
 from legs_jax.errors import ConfigError
 
 __all__ = [
@@ -41,6 +41,7 @@ __all__ = [
     "Ctx",
     "Method",
     "Range",
+    "check_declaration",
     "check_prior",
     "every_n_steps",
     "Tables",
@@ -187,7 +188,7 @@ class Card:
     ``cost(cfg)`` is the number of candidate grasps a step touches (planning) and
     ``dense`` says its per-step work and state are O(K) (smaller batches suit it).
     ``reference`` (or None) ``(problem, trial, hp)`` builds its one-rollout NumPy
-    twin (:mod:`legs_jax.reference`). ``bench`` makes it a row of the benchmark's
+    twin (:mod:`legs_jax.core.reference`). ``bench`` makes it a row of the benchmark's
     table (``legs_jax.bench``, timed against its NumPy twin); ``bench_proxy`` names
     a method of that table with the same per-step work, whose measured rate
     stands in for this one's when the benchmark projects a sweep. ``prior_only``
@@ -247,7 +248,7 @@ class Method:
       [B, P, N] over the method's columns: successes and failures of the
       column's grasp, whether it enters the empirical-Bayes fit of our stopping
       bound (attempted), and its grasp id (-1 none). None: the method keeps no
-      per-grasp counts and our bound is NaN (:mod:`legs_jax.stopping`).
+      per-grasp counts and our bound is NaN (:mod:`legs_jax.core.stopping`).
     - ``candidates(state, ctx, cfg) -> [B, P, K]`` bool: the candidate set, dense
       (for tests and conformance checks; not used in the loop).
     - ``active_set`` (or None) ``(state, ctx, cfg) -> [B, P, k]`` grasp ids, -1 for
@@ -315,6 +316,64 @@ def _traced_type(hparams: type, static: tuple[str, ...]) -> type:
     return collections.namedtuple(f"{hparams.__name__}Traced", names)
 
 
+_FUNCTIONS = (
+    "init",
+    "select",
+    "update",
+    "recommend",
+    "recommend_init",
+    "estimates",
+    "candidates",
+)
+
+
+def check_declaration(method: Any, where: str = "") -> None:
+    """Refuse a malformed method declaration with a :class:`ConfigError`."""
+    at = f"method {where or getattr(method, 'name', method)!r}"
+    if not isinstance(method, Method):
+        raise ConfigError(
+            f"{at} is a {type(method).__name__}, not a "
+            "legs_jax.core.methods.base.Method"
+        )
+    if not isinstance(method.name, str) or not method.name.isidentifier():
+        raise ConfigError(f"{at}: its name must be an identifier, got {method.name!r}")
+    for f in _FUNCTIONS:
+        if not callable(getattr(method, f)):
+            raise ConfigError(f"{at}: {f} is not callable")
+    if not isinstance(method.card, Card):
+        raise ConfigError(f"{at}: card must be a legs_jax.core.methods.base.Card")
+    optional = ("prune", "prune_due", "active_set", "recommend_updated", "check")
+    for f, v in [(f, getattr(method, f)) for f in optional] + [
+        ("card.reference", method.card.reference)
+    ]:
+        if v is not None and not callable(v):
+            raise ConfigError(f"{at}: {f} must be callable or None")
+    if method.prune is not None and method.prune_due is None:
+        raise ConfigError(f"{at}: prune needs prune_due, its schedule")
+    if not callable(method.active_width):
+        raise ConfigError(f"{at}: active_width is not callable")
+    hp = method.hparams
+    fields = getattr(hp, "_fields", None)
+    if not isinstance(hp, type) or fields is None:
+        raise ConfigError(f"{at}: hparams must be a NamedTuple class")
+    missing = [n for n in fields if n not in hp._field_defaults]
+    if missing:
+        raise ConfigError(f"{at}: hyperparameter(s) without a default: {missing}")
+    for n in list(method.ranges) + list(method.static):
+        if n not in fields:
+            raise ConfigError(f"{at}: {n} is not a field of {hp.__name__}")
+    for n, v in hp._field_defaults.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ConfigError(f"{at}: the default of {n} must be a number, got {v!r}")
+        rng = method.ranges.get(n)
+        if not math.isfinite(v) or (rng is not None and not rng.contains(v)):
+            raise ConfigError(f"{at}: the default {n} = {v!r} is outside its range")
+    for n in method.static:
+        rng = method.ranges.get(n)
+        if rng is None or not rng.integer:
+            raise ConfigError(f"{at}: static {n} needs an integer range")
+
+
 # ----------------------------------------------------------------------- helpers
 
 
@@ -325,7 +384,7 @@ def every_n_steps(state: Any, ctx: Ctx, cfg: Config, s: jax.Array, t) -> jax.Arr
 
 
 #: Index of the maximum along an axis, the lowest one on ties (as np.argmax):
-#: :func:`legs_jax.sampling.argmax_first`, faster than ``jnp.argmax`` on CPU.
+#: :func:`legs_jax.core.sampling.argmax_first`, faster than ``jnp.argmax`` on CPU.
 argmax_first = sampling.argmax_first
 
 

@@ -95,7 +95,7 @@ def _code_fingerprint() -> str:
     import scipy
 
     h = hashlib.sha256()
-    root = Path(__file__).resolve().parent
+    root = Path(__file__).resolve().parents[1]  # the whole package
     for p in sorted(root.rglob("*.py")):
         h.update(str(p.relative_to(root)).encode())
         h.update(p.read_bytes())
@@ -195,7 +195,12 @@ def _execution_devices(leaves) -> tuple | None:
 def _fresh_compile(lowered):
     """Compile without JAX's persistent cache: an executable loaded from there
     cannot be serialised again (jaxlib 0.10 drops its functions), so the kept
-    executables are made from fresh compiles, and then stand in for that cache."""
+    executables are made from fresh compiles, and then stand in for that cache.
+
+    JAX 0.10 documents no per-call way to bypass that cache (``compile()`` takes
+    XLA options only, and ``jax_enable_compilation_cache`` is not one of JAX's
+    public context managers), so the flag is turned off around this one compile
+    and restored, with the cache's state, in ``finally`` whatever happens."""
     from jax.experimental.compilation_cache import compilation_cache
 
     was = jax.config.jax_enable_compilation_cache

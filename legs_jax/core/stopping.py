@@ -1,6 +1,6 @@
 """Our stopping bound: the Dirichlet bound on an empirical-Bayes posterior.
 
-The paper's bound (Section 4.4, :func:`legs_jax.engine.dirichlet_quantiles`)
+The paper's bound (Section 4.4, :func:`legs_jax.core.engine.dirichlet_quantiles`)
 plugs p̂*_s, the largest posterior mean among a pose's candidates, into
 Σ_s λ'_s p̂*_s. With about a hundred candidates on a few attempts each the
 largest mean is the winner's curse: it overstates the true p of the recommended

@@ -12,9 +12,9 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from legs_jax import sampling
-from legs_jax.methods._dense import update  # the same Beta update, per slot
-from legs_jax.methods.base import (
+from legs_jax.core import sampling
+from legs_jax.core.methods._dense import update  # the same Beta update, per slot
+from legs_jax.core.methods.base import (
     Config,
     Ctx,
     argmin_id_of_max,

@@ -1,8 +1,8 @@
 """Bayes-UCB (K=100): the grasp of highest posterior quantile among the fixed
 top-100 grasps by prior (the candidate set of BORGES (K=100)); the index and its
-NumPy twin are those of :mod:`legs_jax.methods.bayes_ucb_2000`."""
+NumPy twin are those of :mod:`legs_jax.core.methods.bayes_ucb_2000`."""
 
-from legs_jax.methods.bayes_ucb_2000 import make
+from legs_jax.core.methods.bayes_ucb_2000 import make
 
 METHOD = make(
     "bayes_ucb_100",

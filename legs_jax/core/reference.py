@@ -80,13 +80,13 @@ Dirichlet stopping check (SPEC §5).
   interpolation (``np.quantile``); both variants use the same samples.
 
 Methods.
-  Each method (:mod:`legs_jax.methods`) names its NumPy twin in its declaration
+  Each method (:mod:`legs_jax.core.methods`) names its NumPy twin in its declaration
   (``Method.card.reference``, one of the classes below or the user's own); this
   module's loop, environment and checks are shared by all of them.
 
 Validation.
   :func:`check_hparams` applies the method's own declaration, as the engine does
-  (:func:`legs_jax.methods.parse_grid`): an unknown method or hyperparameter, a
+  (:func:`legs_jax.core.methods.parse_grid`): an unknown method or hyperparameter, a
   value outside its declared range, s = prior_offset = 0, and k > K for LEGS raise
   :class:`legs_jax.errors.ConfigError`. BORGES (K=100) and the K100 upper bound
   always use the top 100 (or every valid grasp when a pose has fewer).
@@ -100,10 +100,10 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from legs_jax.constants import DELTA_STOP, NUM_DIRICHLET_SAMPLES, Q_CLIP
+from legs_jax.core.constants import DELTA_STOP, NUM_DIRICHLET_SAMPLES, Q_CLIP
+from legs_jax.core.methods.base import Config
+from legs_jax.core.problem import Problem
 from legs_jax.errors import ConfigError
-from legs_jax.methods.base import Config
-from legs_jax.problem import Problem
 
 __all__ = [
     "DELTA_STOP",
@@ -111,11 +111,8 @@ __all__ = [
     "BetaMethod",
     "Borges",
     "Fixed",
-    "Legs",
-    "LegsNoAS",
     "ReferenceMethod",
     "RunResult",
-    "TQL",
     "check_hparams",
     "constant_gap",
     "constant_policy",
@@ -124,6 +121,8 @@ __all__ = [
     "legs_prune",
     "performance",
     "prior_choice",
+    "rank_by_prior",
+    "masked_argmax",
     "rollout_rng",
     "run",
     "run_rollout",
@@ -155,11 +154,11 @@ def check_hparams(
     problem: Problem, method: Any, hparams: Mapping[str, Any] | None = None
 ) -> dict[str, float | int]:
     """Complete ``hparams`` with the method's defaults and validate them (the
-    engine's rules, :func:`legs_jax.methods.parse_grid`), one value each.
+    engine's rules, :func:`legs_jax.core.methods.parse_grid`), one value each.
 
     Raises :class:`ConfigError` with a one-line message (see the module docstring).
     """
-    from legs_jax import methods
+    from legs_jax.core import methods
 
     m = methods.resolve(method)
     for name, value in (hparams or {}).items():
@@ -176,7 +175,9 @@ def _check_run_args(
     problem: Problem, horizon: int, record_every: int, check_every: int
 ) -> None:
     if not isinstance(problem, Problem):
-        raise ConfigError(f"expected a legs_jax.problem.Problem, got {type(problem)}")
+        raise ConfigError(
+            f"expected a legs_jax.core.problem.Problem, got {type(problem)}"
+        )
     for name, value in (
         ("horizon", horizon),
         ("record_every", record_every),
@@ -223,7 +224,7 @@ def gap(problem: Problem, trial: int, policy: np.ndarray) -> float:
     return float(np.sum(lam * p_star)) - performance(problem, trial, policy)
 
 
-def _rank_by_prior(q_row: np.ndarray, valid_row: np.ndarray) -> np.ndarray:
+def rank_by_prior(q_row: np.ndarray, valid_row: np.ndarray) -> np.ndarray:
     """Valid grasp indices of one pose in descending q (ties: lower index first)."""
     idx = np.flatnonzero(valid_row)
     return idx[np.argsort(-q_row[idx], kind="stable")]
@@ -233,11 +234,11 @@ def _top_mask(q: np.ndarray, valid: np.ndarray, size: int) -> np.ndarray:
     """[P, K] bool: the top-``size`` valid grasps of each pose by q."""
     mask = np.zeros_like(valid)
     for s in range(q.shape[0]):
-        mask[s, _rank_by_prior(q[s], valid[s])[:size]] = True
+        mask[s, rank_by_prior(q[s], valid[s])[:size]] = True
     return mask
 
 
-def _masked_argmax(score: np.ndarray, mask: np.ndarray) -> int:
+def masked_argmax(score: np.ndarray, mask: np.ndarray) -> int:
     """Lowest index of the max of ``score`` over ``mask`` (-1 if mask is empty)."""
     idx = np.flatnonzero(mask)  # ascending, so argmax's first max is the lowest
     return int(idx[np.argmax(score[idx])]) if idx.size else -1
@@ -246,7 +247,7 @@ def _masked_argmax(score: np.ndarray, mask: np.ndarray) -> int:
 def prior_choice(problem: Problem, trial: int) -> np.ndarray:
     """[P] the grasp of highest q of each pose (Dex-Net's), -1 with none."""
     _, _, q, valid = _trial_arrays(problem, trial)
-    return np.array([_masked_argmax(q[s], valid[s]) for s in range(len(q))])
+    return np.array([masked_argmax(q[s], valid[s]) for s in range(len(q))])
 
 
 def top_truth_choice(problem: Problem, trial: int, size: int) -> np.ndarray:
@@ -254,12 +255,12 @@ def top_truth_choice(problem: Problem, trial: int, size: int) -> np.ndarray:
     bound's), -1 with none."""
     _, p, q, valid = _trial_arrays(problem, trial)
     cand = _top_mask(q, valid, size)
-    return np.array([_masked_argmax(p[s], cand[s]) for s in range(len(p))])
+    return np.array([masked_argmax(p[s], cand[s]) for s in range(len(p))])
 
 
 def constant_policy(problem: Problem, method: Any, trial: int) -> np.ndarray:
     """[P] fixed grasp per pose of a constant row (a method that does not learn)."""
-    from legs_jax import methods
+    from legs_jax.core import methods
 
     m = methods.resolve(method)
     twin = m.card.reference(problem, trial, m.defaults()) if m.card.reference else None
@@ -507,90 +508,6 @@ class Borges(BetaMethod):
             self.cand = _top_mask(self.q, self.valid, top)
 
 
-class LegsNoAS(BetaMethod):
-    """LEGS(-AS): Thompson sampling over all K minus the removed grasps."""
-
-    def _prune_set(self, s: int) -> np.ndarray:
-        """[K] bool, the LEGS removal set of pose s (:func:`legs_prune`)."""
-        hp = self.hp
-        args = (self.alpha[s], self.beta[s], self.attempted[s], self.cand[s])
-        return legs_prune(*args, hp["delta"], hp["gamma"])
-
-    def after_step(self, t: int, s: int) -> None:
-        if t % self.hp["n"] != 0:
-            return
-        removed = self._prune_set(s)
-        self.cand[s] &= ~removed
-        self.replacements += int(removed.sum())
-        self.removal_log += [(t, s, int(g)) for g in np.flatnonzero(removed)]
-        self._dirty[s] = True
-
-
-class Legs(LegsNoAS):
-    """LEGS: Thompson sampling over an active set of k slots, pruned and refilled."""
-
-    def __init__(self, problem, trial, hp):
-        super().__init__(problem, trial, hp)
-        P, k = self.q.shape[0], hp["k"]
-        self.slots = np.full((P, k), -1)  # [P, k] grasp id per slot, -1 empty
-        self.queue: list[np.ndarray] = []  # per pose: refill order (descending q)
-        self.queue_next = np.zeros(P, int)  # per pose: next queue position
-        for s in range(P):
-            ranked = _rank_by_prior(self.q[s], self.valid[s])
-            self.slots[s, : min(k, ranked.size)] = ranked[:k]
-            self.queue.append(ranked[k:])
-        self.cand = np.zeros_like(self.valid)
-        for s in range(P):
-            self.cand[s, self.slots[s][self.slots[s] >= 0]] = True
-
-    def after_step(self, t: int, s: int) -> None:
-        if t % self.hp["n"] != 0:
-            return
-        removed = self._prune_set(s)
-        for j in range(self.slots.shape[1]):  # slot order
-            g = self.slots[s, j]
-            if g < 0 or not removed[g]:
-                continue
-            self.cand[s, g] = False
-            self.replacements += 1
-            self.removal_log.append((t, s, int(g)))
-            if self.queue_next[s] < self.queue[s].size:
-                new = self.queue[s][self.queue_next[s]]
-                self.queue_next[s] += 1
-                self.slots[s, j] = new
-                self.cand[s, new] = True  # its posterior is still the prior
-            else:
-                self.slots[s, j] = -1
-        self._dirty[s] = True
-
-    def active_slots(self, k: int) -> np.ndarray:
-        return np.where(self.visited[:, None], self.slots, -1)
-
-
-class TQL(ReferenceMethod):
-    """Tabular one-step Q-learning, ε-greedy: Q ← Q + η (r − Q), Q₀ = q."""
-
-    def __init__(self, problem, trial, hp):
-        super().__init__(problem, trial, hp)
-        self.Q = self.q.copy()  # [P, K]
-
-    def select(self, s: int, rng: np.random.Generator) -> int:
-        if rng.random() < self.hp["epsilon"]:
-            idx = np.flatnonzero(self.valid[s])  # explore: uniform over valid
-            return int(idx[rng.integers(idx.size)])
-        return _masked_argmax(self.Q[s], self.cand[s])
-
-    def update(self, s: int, a: int, r: bool) -> None:
-        super().update(s, a, r)
-        self.Q[s, a] += self.hp["eta"] * (float(r) - self.Q[s, a])
-
-    def _score(self) -> np.ndarray:
-        return self.Q
-
-    def _recommend_pose(self, s: int) -> int:
-        return _masked_argmax(self.Q[s], self.cand[s])
-
-
 # ---------------------------------------------------------------- rollouts
 
 
@@ -732,7 +649,7 @@ def run_rollout(
 def _method(method: Any):
     """The registered method (a name, ``module:ATTRIBUTE`` or a Method) that has
     a NumPy twin."""
-    from legs_jax import methods
+    from legs_jax.core import methods
 
     m = methods.resolve(method)
     if m.card.reference is None:

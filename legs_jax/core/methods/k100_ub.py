@@ -3,9 +3,9 @@ top-100 by prior q (SPEC §4). An oracle row, not a method; its gap is constant 
 bounds what BORGES (K=100) can reach.
 """
 
-from legs_jax import reference as ref
-from legs_jax.methods import _fixed
-from legs_jax.methods.base import TOP_FIXED, Card, Method
+from legs_jax.core import reference as ref
+from legs_jax.core.methods import _fixed
+from legs_jax.core.methods.base import TOP_FIXED, Card, Method
 
 METHOD = Method(
     name="k100_ub",

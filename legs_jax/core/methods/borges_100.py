@@ -1,8 +1,8 @@
 """BORGES (K=100): Thompson sampling over the fixed top-100 grasps by q (SPEC §4)."""
 
-from legs_jax import reference as ref
-from legs_jax.methods import _slots
-from legs_jax.methods.base import TOP_FIXED, Card, Method
+from legs_jax.core import reference as ref
+from legs_jax.core.methods import _slots
+from legs_jax.core.methods.base import TOP_FIXED, Card, Method
 
 METHOD = Method(
     name="borges_100",

@@ -1,6 +1,6 @@
 """Tables (Markdown, LaTeX, CSV) and the reproduction report, as text.
 
-Pure functions from the DataFrames of ``legs_jax.analysis`` to strings: the same
+Pure functions from the DataFrames of ``legs_jax.report.analysis`` to strings: the same
 inputs always give byte-identical text (no dates, no machine names), so tables
 regenerated from committed results match the committed tables exactly.
 """
@@ -18,12 +18,18 @@ import experiments
 from legs_jax._files import atomic_write
 
 __all__ = [
+    "Appendix",
+    "Cell",
     "Num",
     "Table",
-    "Appendix",
     "appendix_section",
     "appendix_table",
     "build_report",
+    "fmt",
+    "horizon_text",
+    "paper_value",
+    "pct",
+    "tex_escape",
     "to_csv",
     "to_latex",
     "to_markdown",
@@ -451,10 +457,10 @@ def appendix_section(ctx: Mapping, spec: Appendix) -> list[str]:
 
 
 def build_report(ctx: Mapping) -> str:
-    """REPORT.md from what ``legs_jax.figures.generate`` computed (``ctx``): the
+    """REPORT.md from what ``legs_jax.report.figures.generate`` computed (``ctx``): the
     results used, then the sections every experiment's ``analysis.py`` declares
     (``SECTIONS``: position, function of ``ctx``), by position."""
-    from legs_jax import analysis as an
+    from legs_jax.report import analysis as an
 
     L: list[str] = [
         "# Reproduction report: LEGS (Fu et al., ICRA 2022)",
