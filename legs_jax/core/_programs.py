@@ -200,7 +200,13 @@ def _fresh_compile(lowered):
     JAX 0.10 documents no per-call way to bypass that cache (``compile()`` takes
     XLA options only, and ``jax_enable_compilation_cache`` is not one of JAX's
     public context managers), so the flag is turned off around this one compile
-    and restored, with the cache's state, in ``finally`` whatever happens."""
+    and restored, with the cache's state, in ``finally`` whatever happens.
+
+    Tried instead: compiling with the cache on and keeping the executable only
+    when it loads back. An executable that JAX took from its cache serialises,
+    loads and runs again in the same process, but a later process fails when it
+    runs it ("Function wrapped_broadcast.5 not found"), so no check inside one
+    process can tell the two apart."""
     from jax.experimental.compilation_cache import compilation_cache
 
     was = jax.config.jax_enable_compilation_cache
