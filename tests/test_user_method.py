@@ -16,7 +16,7 @@ import pandas as pd
 import pytest
 
 from legs_jax import sweep, synthetic
-from legs_jax.core import engine, keys, problem
+from legs_jax.core import engine, keys, methods, problem
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -39,6 +39,8 @@ def user_package(tmp_path, monkeypatch):
     # a my_pkg imported by an earlier test lives in another folder: forget it
     for name in [m for m in sys.modules if m == "my_pkg" or m.startswith("my_pkg.")]:
         monkeypatch.delitem(sys.modules, name)
+    # the methods a test registers are forgotten after it (tests in any order)
+    monkeypatch.setattr(methods, "_REGISTRY", dict(methods._REGISTRY))
     return pkg
 
 
