@@ -100,7 +100,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from legs_jax.core.constants import DELTA_STOP, NUM_DIRICHLET_SAMPLES, Q_CLIP
+from legs_jax.core.constants import DELTA_STOP, NUM_DIRICHLET_SAMPLES
 from legs_jax.core.methods.base import Config
 from legs_jax.core.problem import Problem
 from legs_jax.errors import ConfigError
@@ -108,9 +108,6 @@ from legs_jax.errors import ConfigError
 __all__ = [
     "DELTA_STOP",
     "NUM_DIRICHLET_SAMPLES",
-    "BetaMethod",
-    "Borges",
-    "Fixed",
     "ReferenceMethod",
     "RunResult",
     "check_hparams",
@@ -126,6 +123,7 @@ __all__ = [
     "rollout_rng",
     "run",
     "run_rollout",
+    "top_mask",
     "top_truth_choice",
 ]
 
@@ -230,7 +228,7 @@ def rank_by_prior(q_row: np.ndarray, valid_row: np.ndarray) -> np.ndarray:
     return idx[np.argsort(-q_row[idx], kind="stable")]
 
 
-def _top_mask(q: np.ndarray, valid: np.ndarray, size: int) -> np.ndarray:
+def top_mask(q: np.ndarray, valid: np.ndarray, size: int) -> np.ndarray:
     """[P, K] bool: the top-``size`` valid grasps of each pose by q."""
     mask = np.zeros_like(valid)
     for s in range(q.shape[0]):
@@ -254,7 +252,7 @@ def top_truth_choice(problem: Problem, trial: int, size: int) -> np.ndarray:
     """[P] the grasp of highest p among the top ``size`` by q (the K100 upper
     bound's), -1 with none."""
     _, p, q, valid = _trial_arrays(problem, trial)
-    cand = _top_mask(q, valid, size)
+    cand = top_mask(q, valid, size)
     return np.array([masked_argmax(p[s], cand[s]) for s in range(len(p))])
 
 
@@ -264,7 +262,7 @@ def constant_policy(problem: Problem, method: Any, trial: int) -> np.ndarray:
 
     m = methods.resolve(method)
     twin = m.card.reference(problem, trial, m.defaults()) if m.card.reference else None
-    if m.learns or not isinstance(twin, Fixed):
+    if m.learns or getattr(twin, "choice", None) is None:
         raise ConfigError(f"{m.name} is not a constant row")
     return twin.choice.copy()
 
@@ -404,6 +402,8 @@ class ReferenceMethod:
         self.visited = np.zeros(P, bool)  # [P] Algorithm 1's Ŝ
         self.replacements = 0
         self.removal_log: list[tuple[int, int, int]] = []  # (step, pose, grasp)
+        # [P] the fixed grasp of each pose of a constant row (None: it learns)
+        self.choice: np.ndarray | None = None
         self._policy = np.full(P, -1)  # cached recommendation
         self._dirty = np.ones(P, bool)  # poses whose recommendation may change
 
@@ -444,68 +444,6 @@ class ReferenceMethod:
     def active_slots(self, k: int) -> np.ndarray:
         """[P, k] grasp ids of each pose's active set (-1 empty); LEGS only."""
         return np.full((self.q.shape[0], k), -1)
-
-
-class BetaMethod(ReferenceMethod):
-    """Thompson sampling on the Beta posterior of SPEC §3 over ``cand``."""
-
-    def __init__(self, problem: Problem, trial: int, hp: Mapping[str, Any]):
-        super().__init__(problem, trial, hp)
-        qc = np.clip(self.q, *Q_CLIP)
-        off, s = hp["prior_offset"], hp["s"]
-        # α = prior_offset + s·q + S, β = prior_offset + s·(1 − q) + F; S = F = 0.
-        self.alpha = np.where(self.valid, off + s * qc, 1.0)  # [P, K]
-        self.beta = np.where(self.valid, off + s * (1.0 - qc), 1.0)  # [P, K]
-
-    def select(self, s: int, rng: np.random.Generator) -> int:
-        idx = np.flatnonzero(self.cand[s])  # ascending grasp ids
-        phi = rng.beta(self.alpha[s, idx], self.beta[s, idx])
-        return int(idx[np.argmax(phi)])
-
-    def update(self, s: int, a: int, r: bool) -> None:
-        super().update(s, a, r)
-        if r:
-            self.alpha[s, a] += 1.0
-        else:
-            self.beta[s, a] += 1.0
-
-    def _score(self) -> np.ndarray:
-        return self.alpha / (self.alpha + self.beta)
-
-    def _recommend_pose(self, s: int) -> int:
-        idx = np.flatnonzero(self.cand[s])  # ascending grasp ids
-        if idx.size == 0:
-            return -1
-        if self.visited[s]:  # argmax posterior mean
-            a, b = self.alpha[s, idx], self.beta[s, idx]
-            return int(idx[np.argmax(a / (a + b))])
-        return int(idx[np.argmax(self.q[s, idx])])  # no data yet: argmax prior
-
-
-class Fixed(BetaMethod):
-    """A constant row: ``choice`` [P] in every pose; its Beta posterior over the
-    candidates (all valid grasps, or the top ``top`` by q) serves the check."""
-
-    def __init__(self, problem, trial, hp, choice: np.ndarray, top: int | None = None):
-        super().__init__(problem, trial, hp)
-        if top is not None:
-            self.cand = _top_mask(self.q, self.valid, top)
-        self.choice = np.asarray(choice)  # [P]
-
-    def select(self, s: int, rng: np.random.Generator) -> int:
-        return int(self.choice[s])
-
-    def _recommend_pose(self, s: int) -> int:
-        return int(self.choice[s])
-
-
-class Borges(BetaMethod):
-    """BORGES: Thompson sampling over a fixed candidate set (top-100 or all K)."""
-
-    def __init__(self, problem, trial, hp, top: int | None):
-        super().__init__(problem, trial, hp)
-        if top is not None:
-            self.cand = _top_mask(self.q, self.valid, top)
 
 
 # ---------------------------------------------------------------- rollouts

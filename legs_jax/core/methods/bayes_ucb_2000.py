@@ -23,8 +23,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from legs_jax.core import reference as ref
 from legs_jax.core import sampling
+from legs_jax.core.methods import _beta_twin as twin
 from legs_jax.core.methods import _dense, _slots
 from legs_jax.core.methods.base import (
     TOP_FIXED,
@@ -197,7 +197,7 @@ def make(name: str, top: bool, description: str, **card) -> Method:
     )
 
 
-class Reference(ref.Borges):
+class Reference(twin.Borges):
     """The NumPy twin: BORGES's posterior, the Bayes-UCB choice."""
 
     def __init__(self, problem, trial, hp, top: int | None):

@@ -1,6 +1,6 @@
 """BORGES (K=100): Thompson sampling over the fixed top-100 grasps by q (SPEC §4)."""
 
-from legs_jax.core import reference as ref
+from legs_jax.core.methods import _beta_twin as twin
 from legs_jax.core.methods import _slots
 from legs_jax.core.methods.base import TOP_FIXED, Card, Method
 
@@ -15,7 +15,7 @@ METHOD = Method(
         short_label="BORGES-100",
         style=dict(color="#ff7f0e", ls="-", lw=1.6),
         cost=lambda cfg: float(cfg.top),
-        reference=lambda problem, trial, hp: ref.Borges(
+        reference=lambda problem, trial, hp: twin.Borges(
             problem, trial, hp, top=TOP_FIXED
         ),
     ),

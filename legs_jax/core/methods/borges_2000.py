@@ -1,6 +1,6 @@
 """BORGES (K=2000): Thompson sampling over every grasp of the pose (SPEC §4)."""
 
-from legs_jax.core import reference as ref
+from legs_jax.core.methods import _beta_twin as twin
 from legs_jax.core.methods import _dense
 from legs_jax.core.methods.base import Card, Method
 
@@ -15,6 +15,6 @@ METHOD = Method(
         short_label="BORGES-2000",
         style=dict(color="#2ca02c", ls="-", lw=1.6),
         dense=True,
-        reference=lambda problem, trial, hp: ref.Borges(problem, trial, hp, top=None),
+        reference=lambda problem, trial, hp: twin.Borges(problem, trial, hp, top=None),
     ),
 )

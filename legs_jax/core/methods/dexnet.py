@@ -6,6 +6,7 @@ Dirichlet check.
 """
 
 from legs_jax.core import reference as ref
+from legs_jax.core.methods import _beta_twin as twin
 from legs_jax.core.methods import _fixed
 from legs_jax.core.methods.base import Card, Method
 
@@ -21,7 +22,7 @@ METHOD = Method(
         label="Dex-Net (prior only)",
         short_label="Dex-Net*",
         style=dict(color="#7f7f7f", ls="--", lw=1.6),
-        reference=lambda problem, trial, hp: ref.Fixed(
+        reference=lambda problem, trial, hp: twin.Fixed(
             problem, trial, hp, ref.prior_choice(problem, trial)
         ),
     ),

@@ -4,6 +4,7 @@ bounds what BORGES (K=100) can reach.
 """
 
 from legs_jax.core import reference as ref
+from legs_jax.core.methods import _beta_twin as twin
 from legs_jax.core.methods import _fixed
 from legs_jax.core.methods.base import TOP_FIXED, Card, Method
 
@@ -20,7 +21,7 @@ METHOD = Method(
         short_label="K100-UB",
         style=dict(color="#000000", ls=":", lw=1.6),
         oracle=True,
-        reference=lambda problem, trial, hp: ref.Fixed(
+        reference=lambda problem, trial, hp: twin.Fixed(
             problem,
             trial,
             hp,

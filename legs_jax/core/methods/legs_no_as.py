@@ -6,6 +6,7 @@ from typing import NamedTuple
 import numpy as np
 
 from legs_jax.core import reference as ref
+from legs_jax.core.methods import _beta_twin as twin
 from legs_jax.core.methods import _dense
 from legs_jax.core.methods.base import (
     COUNT,
@@ -25,7 +26,7 @@ class LegsNoASHParams(NamedTuple):
     n: int = 100  # pruning period (static)
 
 
-class Reference(ref.BetaMethod):
+class Reference(twin.BetaMethod):
     """LEGS(-AS): Thompson sampling over all K minus the removed grasps."""
 
     def _prune_set(self, s: int) -> np.ndarray:
