@@ -44,7 +44,9 @@ def test_loop_follows_the_engine_step_for_step(setup, method):
     given_hp = {n: v for n, v in {"k": 20, "n": 25}.items() if n in m.defaults()}
     hp_vals = dict(m.defaults(), **given_hp)
     cfg = Config(num_poses=P, num_grasps=K, **{n: hp_vals[n] for n in m.static})
-    fn = engine.compiled(m, cfg, H, 10, None, trajectory=True, dirichlet=False)
+    fn = engine.compiled(
+        m, cfg, H, record_every=10, check_every=None, trajectory=True, dirichlet=False
+    )
     ks = keys.rollout_keys(4, np.zeros(B, int), np.zeros(B, int), np.arange(B))
     hp = m.traced_hparams(**{n: jnp.full(B, hp_vals[n], jnp.float32) for n in m.traced})
     t_dev = type(tables)(*(jnp.asarray(x) for x in tables))

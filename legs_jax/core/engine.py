@@ -27,6 +27,7 @@ C1 recorded gap steps, C2 checks.
 from __future__ import annotations
 
 import functools
+import inspect
 import math
 import numbers
 from collections import Counter
@@ -719,44 +720,51 @@ def _batch_rows(rows_per_device: int, largest: int, quantum: int) -> int:
     return -(-per // quantum) * quantum
 
 
-@functools.lru_cache(maxsize=64)
+def _simulate_options() -> dict[str, Any]:
+    """The keyword options of :func:`simulate` and their defaults."""
+    params = inspect.signature(simulate).parameters.values()
+    return {
+        p.name: p.default
+        for p in params
+        if p.kind is p.KEYWORD_ONLY and p.default is not p.empty
+    }
+
+
 def compiled(
     method: Method | str,
     cfg: Config,
     horizon: int,
-    record_every: int = 10,
-    check_every: int | None = 100,
-    attempted_variant: bool = True,
-    record_active_set: bool = False,
-    trajectory: bool = False,
+    *,
     grid: bool = False,
     devices: tuple | None = None,
-    dirichlet: bool = True,
     raw_keys: bool = False,
+    **options: Any,
 ) -> Callable:
     """The jitted :func:`simulate` for one static configuration (cached).
 
-    ``method`` is a :class:`Method` or a name (:func:`legs_jax.core.methods.resolve`).
-    Returns ``f(tables, ot, rollout_keys, hp) -> dict``. With ``grid=True`` the
-    function is ``jit(vmap(simulate))`` over a leading axis G of ``rollout_keys``
-    [G, B] and of every ``hp`` leaf [G, B]. With several ``devices`` the batch axis
-    is sharded over them (``shard_map``); the tables are replicated. With
-    ``raw_keys`` the keys come as their raw uint32 words [..., 2]
+    ``method`` is a :class:`Method` or a name (:func:`legs_jax.core.methods.resolve`);
+    ``options`` are :func:`simulate`'s keyword options (``record_every``,
+    ``check_every``, ...; the others keep their defaults). Returns
+    ``f(tables, ot, rollout_keys, hp) -> dict``. With ``grid=True`` the function is
+    ``jit(vmap(simulate))`` over a leading axis G of ``rollout_keys`` [G, B] and of
+    every ``hp`` leaf [G, B]. With several ``devices`` the batch axis is sharded
+    over them (``shard_map``); the tables are replicated. With ``raw_keys`` the
+    keys come as their raw uint32 words [..., 2]
     (:func:`legs_jax.core.keys.rollout_key_data`).
     """
-    m = methods_mod.resolve(method)
-    fn = functools.partial(
-        simulate,
-        method=m,
-        cfg=cfg,
-        horizon=horizon,
-        record_every=record_every,
-        check_every=check_every,
-        attempted_variant=attempted_variant,
-        record_active_set=record_active_set,
-        trajectory=trajectory,
-        dirichlet=dirichlet,
+    defaults = _simulate_options()
+    unknown = sorted(set(options) - set(defaults))
+    if unknown:
+        raise TypeError(f"compiled() got unknown simulate options {unknown}")
+    opts = tuple(sorted({**defaults, **options}.items()))
+    return _compiled(
+        methods_mod.resolve(method), cfg, horizon, grid, devices, raw_keys, opts
     )
+
+
+@functools.lru_cache(maxsize=64)
+def _compiled(m, cfg, horizon, grid, devices, raw_keys, opts) -> Callable:
+    fn = functools.partial(simulate, method=m, cfg=cfg, horizon=horizon, **dict(opts))
     if grid:
         plain = fn
         fn = lambda tables, ot, ks, hp: jax.vmap(  # noqa: E731
@@ -768,8 +776,7 @@ def compiled(
         _jit_rows(fn, devices, (None, "b", "b", "b"), grid),
         _programs.method_fingerprint(m),
         "simulate",
-        cfg, horizon, record_every, check_every, attempted_variant,
-        record_active_set, trajectory, grid, dirichlet, raw_keys,
+        cfg, horizon, opts, grid, raw_keys,
         _programs.devices_fingerprint(devices),
     )  # fmt: skip
 
@@ -1009,9 +1016,10 @@ def run(
         per_dev = mini_batch_rows(m, cfg, like, n_dev, platform, batch_size)
         Bc = per_dev * n_dev
         fn = compiled(
-            m, cfg, H, record_every, check_every,
-            bool(stop_variant_attempted), bool(record_active_set),
-            devices=devices, dirichlet=False, raw_keys=True,
+            m, cfg, H, devices=devices, raw_keys=True, dirichlet=False,
+            record_every=record_every, check_every=check_every,
+            attempted_variant=bool(stop_variant_attempted),
+            record_active_set=bool(record_active_set),
         )  # fmt: skip
         checks_fn = compiled_checks(devices, True) if check_every else None
         pending = []
