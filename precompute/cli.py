@@ -7,6 +7,7 @@ import sys
 import time
 from pathlib import Path
 
+from ._cli import add_mesh_size_args
 from .errors import PrecomputeError
 
 BUILD_HELP = """\
@@ -71,19 +72,7 @@ def _build_parser() -> argparse.ArgumentParser:
         metavar="PATH",
         help="your own mesh (.obj/.stl/.ply/.off); needs --units",
     )
-    p.add_argument(
-        "--units",
-        choices=["m", "cm", "mm"],
-        help="length unit of --mesh (catalogue meshes know theirs)",
-    )
-    p.add_argument(
-        "--fit",
-        choices=["none", "egad"],
-        default="none",
-        help="size rule for --mesh: none keeps the file's size (default); egad "
-        "scales as EGAD! does for the gripper (largest side = the 80 mm opening, "
-        "smallest side at most 64 mm)",
-    )
+    add_mesh_size_args(p, "--mesh", " (catalogue meshes know theirs)")
     p.add_argument(
         "--out",
         type=Path,

@@ -11,6 +11,7 @@ from legs_jax._jax_cache import compile_cache
 from legs_jax.errors import ConfigError
 from legs_jax.online.errors import InputError, OrderError, StateError
 from legs_jax.online.sampler import DEFAULT_PRIOR, PRIORS
+from precompute._cli import add_mesh_size_args
 
 _DESCRIPTION = """\
 LEGS on a robot: an online exploration session over depth images.
@@ -145,17 +146,7 @@ def build_parser() -> argparse.ArgumentParser:
         "by python -m precompute --mesh) or a mesh file (.obj/.stl/.ply/.off, with "
         "--units; poses computed from the mesh)",
     )
-    p.add_argument(
-        "--units",
-        choices=["m", "cm", "mm"],
-        help="length unit of a mesh file given as --object",
-    )
-    p.add_argument(
-        "--fit",
-        choices=["none", "egad"],
-        default="none",
-        help="size rule of a mesh file given as --object (as precompute --mesh)",
-    )
+    add_mesh_size_args(p, "a mesh file given as --object (as precompute --mesh)")
     p.add_argument(
         "--steps",
         type=int,
