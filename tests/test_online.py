@@ -595,3 +595,42 @@ def test_recognition_table_regenerate_line_names_the_objects():
     assert "recognition-table --views 5 --seed 3 --objects pawn vase`" in text
     text = table_markdown([row], 5, 3, list(DEXNET_OBJECTS))
     assert "recognition-table --views 5 --seed 3`" in text
+
+
+_FAKE_SERVE = (
+    "import sys\n"
+    "print('{\"ok\": true}', flush=True)\n"
+    "for i, line in enumerate(sys.stdin):\n"
+    "    if i == int(sys.argv[1]):\n"
+    "        sys.exit(3)\n"
+    "    print('{\"ok\": true}', flush=True)\n"
+)
+
+
+@pytest.mark.parametrize("dies_at", [99, 1])
+def test_online_bench_exchange_reports_a_serve_that_died(dies_at):
+    """online bench's timing of a serve's first requests: a full exchange gives a
+    time for each request; a serve that ends mid-exchange is a one-line error that
+    names the request, and the process is not left behind."""
+    import subprocess
+    import sys
+
+    from legs_jax.online import bench
+
+    reqs = [{"cmd": "observe"}, {"cmd": "ask"}, {"cmd": "tell"}]
+    with subprocess.Popen(
+        [sys.executable, "-c", _FAKE_SERVE, str(dies_at)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    ) as proc:
+        if dies_at == 99:
+            times = bench._exchange(proc, reqs)
+            assert list(times) == ["open", "observe", "ask", "tell"]
+            assert all(t >= 0 for t in times.values())
+        else:
+            with pytest.raises(
+                RuntimeError, match="before it answered ask .exit code 3"
+            ):
+                bench._exchange(proc, reqs)
+    assert proc.returncode in (0, 3)

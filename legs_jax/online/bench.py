@@ -56,6 +56,37 @@ def time_ask_tell(method: str, depth, intr: dict, repeats: int) -> tuple:
     return float(np.median(out)), float(np.quantile(out, 0.9)), float(np.median(cpu))
 
 
+def _reply(proc: subprocess.Popen, what: str) -> dict:
+    """The next reply line of a ``serve`` process; a clear error where it ended."""
+    line = proc.stdout.readline()
+    if not line:
+        raise RuntimeError(
+            f"serve ended before it answered {what} (exit code {proc.wait()})"
+        )
+    reply = json.loads(line)
+    if not reply.get("ok"):
+        raise RuntimeError(f"{what} refused: {reply}")
+    return reply
+
+
+def _exchange(proc: subprocess.Popen, reqs: list[dict]) -> dict:
+    """Seconds to open the session and to answer each request, in order."""
+    times = {}
+    t0 = time.perf_counter()
+    _reply(proc, "the start")
+    times["open"] = time.perf_counter() - t0
+    for i, req in enumerate(reqs, 1):
+        t0 = time.perf_counter()
+        proc.stdin.write(json.dumps({"id": i, **req}) + "\n")
+        proc.stdin.flush()
+        _reply(proc, req["cmd"])
+        times[req["cmd"]] = time.perf_counter() - t0
+    proc.stdin.write('{"cmd": "quit"}\n')
+    proc.stdin.close()
+    proc.wait(timeout=60)
+    return times
+
+
 def time_first_requests(method: str, depth, intr: dict, cache: str) -> dict:
     """Wall seconds from request to reply of the first observe, ask, tell and
     bound of a ``serve`` process on a new session, in a process started after
@@ -69,32 +100,20 @@ def time_first_requests(method: str, depth, intr: dict, cache: str) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         np.save(Path(tmp) / "view.npy", np.asarray(depth, np.float32))
         reqs[0]["depth"] = {"npy": str(Path(tmp) / "view.npy")}
-        times = {}
         for run in ("warm-up", "timed"):
-            proc = subprocess.Popen(
+            with subprocess.Popen(
                 [sys.executable, "-m", "legs_jax.online", "serve", f"{tmp}/{run}"]
                 + ["--method", method, "--compile-cache", cache],
                 stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE,
                 text=True,
                 env={**os.environ, "PYTHONWARNINGS": "ignore"},
-            )
-            t0 = time.perf_counter()
-            ready = json.loads(proc.stdout.readline())
-            if not ready.get("ok"):
-                raise RuntimeError(f"serve did not start: {ready}")
-            times["open"] = time.perf_counter() - t0
-            for i, req in enumerate(reqs, 1):
-                t0 = time.perf_counter()
-                proc.stdin.write(json.dumps({"id": i, **req}) + "\n")
-                proc.stdin.flush()
-                reply = json.loads(proc.stdout.readline())
-                if not reply.get("ok"):
-                    raise RuntimeError(f"{req['cmd']} refused: {reply}")
-                times[req["cmd"]] = time.perf_counter() - t0
-            proc.stdin.write('{"cmd": "quit"}\n')
-            proc.stdin.close()
-            proc.wait()
+            ) as proc:
+                try:
+                    times = _exchange(proc, reqs)
+                finally:  # a serve that died or hangs is not left behind
+                    if proc.poll() is None:
+                        proc.kill()
     return times
 
 
