@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import jax
 import numpy as np
+import pytest
 from scipy import stats
 
 from legs_jax.core import engine, stopping
@@ -54,6 +55,33 @@ def test_forgotten_grasps_enter_the_fit_like_kept_ones():
     # a dense method keeps its pruned grasps: nothing is forgotten
     same = stopping.forgotten_cells((succ, fail, fit, ids), (succ, fail, fit, ids))
     assert np.asarray(same).sum() == 0
+
+
+def test_leave_out_fits_the_prior_without_the_recommended_grasp():
+    """leave_out_rec: G_s is fitted to the other grasps only, and the
+    recommended grasp's own likelihood still weighs its posterior."""
+    rng = np.random.default_rng(2)
+    succ = rng.integers(0, 6, (2, 3, 20)).astype(np.float32)
+    fail = rng.integers(0, 6, (2, 3, 20)).astype(np.float32)
+    fit = rng.random(succ.shape) < 0.8
+    rec = np.zeros(succ.shape, bool)
+    rec[..., 4] = True
+    fit[..., 4] = True
+    out = np.asarray(stopping.eb_posterior(succ, fail, fit, rec, leave_out_rec=True))
+    # the recommended grasp's outcomes changed: the fit of G_s does not move
+    more = succ.copy()
+    more[..., 4] += 30
+    moved = np.asarray(stopping.eb_posterior(more, fail, fit, rec, leave_out_rec=True))
+    none = np.zeros_like(rec)  # no recommendation: the posterior is G_s itself
+    prior = np.asarray(stopping.eb_posterior(succ, fail, fit & ~rec, none))
+    theta = (np.arange(stopping.GRID) + 0.5) / stopping.GRID
+    for post, s in ((out, succ), (moved, more)):
+        lik = theta ** s[..., 4:5] * (1 - theta) ** fail[..., 4:5]
+        want = prior * lik
+        np.testing.assert_allclose(post, want / want.sum(-1, keepdims=True), atol=2e-5)
+    # shipped: the recommended grasp's own outcomes also shape G_s
+    shipped = np.asarray(stopping.eb_posterior(succ, fail, fit, rec))
+    assert np.abs(shipped - out).max() > 1e-3
 
 
 def test_a_pose_without_attempts_gets_the_uniform_prior():
@@ -116,7 +144,10 @@ def _synthetic_checks(n_problems: int, seed: int):
     return counts, observed, succ, fail, rec, plug_in, truth
 
 
-def test_miss_rate_is_at_most_delta_stop_where_the_model_holds():
+@pytest.mark.parametrize("leave_out_rec", [False, True])
+def test_miss_rate_is_at_most_delta_stop_where_the_model_holds(leave_out_rec):
+    """Shipped, and with G_s fitted without the recommended grasp's outcomes
+    (the design under study, experiments/early_stopping/bound_design.py)."""
     n = 400
     counts, observed, succ, fail, rec, plug_in, truth = _synthetic_checks(n, 23)
     N = succ.shape[-1]
@@ -125,6 +156,7 @@ def test_miss_rate_is_at_most_delta_stop_where_the_model_holds():
         fail.astype(np.float32),
         (succ + fail) > 0,
         rec[..., None] == np.arange(N),
+        leave_out_rec=leave_out_rec,
     )
     keys = jax.random.split(jax.random.key(5), n)
     draws = stopping.draw_values(keys, post, engine.NUM_DIRICHLET_SAMPLES)

@@ -447,6 +447,7 @@ def simulate(
     record_active_set: bool = False,
     trajectory: bool = False,
     dirichlet: bool = True,
+    eb_leave_out_rec: bool = False,
 ) -> dict[str, jax.Array]:
     """Run B rollouts of ``method`` for ``horizon`` steps (pure; jit- and vmap-able).
 
@@ -466,6 +467,9 @@ def simulate(
         ``check_counts``, ``check_observed``, ``check_values`` and
         ``check_values_attempted`` [B, C2, P] for :func:`dirichlet_checks`, which
         :func:`run` compiles once and shares between methods).
+      eb_leave_out_rec: our bound with G_s fitted without the recommended
+        grasp's own outcomes (``leave_out_rec`` of
+        :func:`legs_jax.core.stopping.eb_posterior`; a design under study).
     Returns:
       dict of arrays with leading axis B: ``gaps`` [B, 1 + H // L] (steps 0, L,
       2L, ...; L = gcd(record_every, check_every)), ``final_gap``,
@@ -555,7 +559,7 @@ def simulate(
         succ, fail, fit, ids = m.counts(c.mstate, ctx, cfg)
         rec = (ids == c.rec[..., None]) & (c.rec[..., None] >= 0)
         lost = c.forgotten if track else None
-        return stopping.eb_posterior(succ, fail, fit, rec, lost)
+        return stopping.eb_posterior(succ, fail, fit, rec, lost, eb_leave_out_rec)
 
     def check(c: _Loop, idx):
         v_all, v_att = m.estimates(c.mstate, ctx, cfg)
@@ -847,6 +851,7 @@ def run(
     check_every: int | None = 100,
     stop_variant_attempted: bool = True,
     record_active_set: bool = False,
+    eb_leave_out_rec: bool = False,
     devices: Sequence[jax.Device] | None = None,
     batch_size: int | None = None,
     progress: bool | Callable[[int], Any] | None = None,
@@ -873,6 +878,8 @@ def run(
       stop_variant_attempted: also compute the bound over attempted grasps only
         (else that field is NaN).
       record_active_set: return each pose's active set at each check.
+      eb_leave_out_rec: our bound's G_s fitted without the recommended grasp's
+        own outcomes (:func:`simulate`; a design under study, off by default).
       devices: devices to shard the rollouts over (default: all local devices).
         On CPU, JAX shows one device unless ``XLA_FLAGS`` holds
         ``--xla_force_host_platform_device_count=<cores>`` before JAX starts;
@@ -1020,6 +1027,7 @@ def run(
             record_every=record_every, check_every=check_every,
             attempted_variant=bool(stop_variant_attempted),
             record_active_set=bool(record_active_set),
+            eb_leave_out_rec=bool(eb_leave_out_rec),
         )  # fmt: skip
         checks_fn = compiled_checks(devices, True) if check_every else None
         pending = []

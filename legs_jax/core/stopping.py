@@ -92,6 +92,7 @@ def eb_posterior(
     fit: jax.Array,
     rec: jax.Array,
     forgotten: jax.Array | None = None,
+    leave_out_rec: bool = False,
 ) -> jax.Array:
     """Posterior bin weights of the recommended grasp of every pose.
 
@@ -102,13 +103,19 @@ def eb_posterior(
         the posterior is G_s itself).
       forgotten: optional [B, P, CELLS] counts of forgotten grasps per (S, F)
         cell (:func:`forgotten_cells`); they enter the fit like the others.
+      leave_out_rec: fit G_s without the recommended grasp's own outcomes (a
+        design under study, off in the engine: ``experiments/early_stopping/
+        bound_design.py``). Fitted with them, G_s's upper tail is mostly the
+        recommended grasp itself (most other grasps have one or two attempts,
+        which identify little more than G_s's mean), and its posterior then
+        uses the same outcomes twice.
     Returns:
       [B, P, GRID] f32 posterior weights (sum 1; G_s uniform where pose s has no
       attempted grasp).
     """
     ll = _log_lik(succ.astype(jnp.float32), fail.astype(jnp.float32))
     own = jnp.sum(jnp.where(rec[..., None], ll, 0.0), axis=2)  # [B, P, J]
-    m = fit.astype(jnp.float32)
+    m = (fit & ~rec if leave_out_rec else fit).astype(jnp.float32)
     if forgotten is not None:
         cs = jnp.arange(CELLS) // CAP
         cf = jnp.arange(CELLS) % CAP
