@@ -180,3 +180,16 @@ def test_miss_rate_is_at_most_delta_stop_where_the_model_holds(leave_out_rec):
     assert np.mean(truth - ours) < 0.25
     # The same test catches the plug-in bound (the winner's curse).
     assert np.mean(paper > truth) > engine.DELTA_STOP + tol
+
+
+def test_bound_design_scores_checks_and_refuses_bad_sizes(capsys):
+    """The design study's scoring (valid: bound at most the truth) and its
+    command line's refusal of an empty run, in one line."""
+    from experiments.early_stopping import bound_design
+
+    got = bound_design.score([0.5, 0.7, 0.9], [0.6, 0.6, 0.9])
+    assert got == {"valid": 2 / 3, "below": pytest.approx(0.0 / 3), "checks": 3}
+    with pytest.raises(SystemExit) as e:
+        bound_design.main(["--rollouts", "0"])
+    assert e.value.code == 2
+    assert "--rollouts must be at least 1" in capsys.readouterr().err
