@@ -63,8 +63,8 @@ def test_a_pose_without_attempts_gets_the_uniform_prior():
 
 
 def _draws_by_reductions(keys, post, num_samples):
-    """draw_values as first written: jax.random's uniforms, the bin search by
-    reductions over a trailing J axis (the draws must not change by a bit)."""
+    """draw_values as first written: the bin search by reductions over a
+    trailing J axis of [B, M, P, J] (the draws must not change by a bit)."""
     import jax.numpy as jnp
 
     B, P, J = post.shape
@@ -86,7 +86,7 @@ def _draws_by_reductions(keys, post, num_samples):
     return (j.astype(jnp.float32) + frac) / J
 
 
-def test_draws_are_bit_identical_to_jax_random_and_the_plain_bin_search():
+def test_draws_are_bit_identical_to_the_bin_search_by_reductions():
     rng = np.random.default_rng(3)
     for i, (B, P, M) in enumerate([(7, 5, 300), (1, 1, 1), (3, 12, 64)]):
         post = rng.dirichlet(np.full(stopping.GRID, [0.05, 1.0, 10.0][i]), (B, P))

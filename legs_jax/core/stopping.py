@@ -44,8 +44,6 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from legs_jax.core import sampling
-
 __all__ = [
     "CAP",
     "EM_ITERATIONS",
@@ -146,13 +144,20 @@ def draw_values(keys: jax.Array, post: jax.Array, num_samples: int) -> jax.Array
     remainder (u − cdf_before) / w (uniform in [0, 1) given the bin).
     """
     B, P, J = post.shape
-    u = _uniforms(keys, P, num_samples)  # [B, P, M]
+
+    def row(k):
+        k = jax.random.fold_in(k, UNIFORM_STREAM)
+        return jax.vmap(
+            lambda s: jax.random.uniform(jax.random.fold_in(k, s), (num_samples,))
+        )(jnp.arange(P))  # [P, M]
+
+    u = jax.vmap(row)(keys)  # [B, P, M]
     cdf = jnp.cumsum(post, axis=-1)  # [B, P, J]
     # The bin, the cumulative weight before it and its own weight, by a count, a
-    # max and a min over the J bins (exact whatever their order), one bin after
-    # another on [B, P, M] arrays: one pass, with M the contiguous axis (a
-    # reduction over a trailing J axis, or this pass fused into the transpose to
-    # [B, M, P], ran 5-10x slower on CPU).
+    # max and a min over the J bins (exact whatever their order; no gathers), one
+    # bin after another on [B, P, M] arrays, M contiguous: one pass. The same
+    # reductions over a trailing J axis of [B, M, P, J] made the check program
+    # of LEGS's checks about 2x as long on CPU.
     count = jnp.zeros(u.shape, jnp.int32)
     before = jnp.zeros(u.shape, jnp.float32)
     upto = jnp.full(u.shape, jnp.inf, jnp.float32)
@@ -165,23 +170,4 @@ def draw_values(keys: jax.Array, post: jax.Array, num_samples: int) -> jax.Array
     j = jnp.minimum(count, J - 1)
     wj = jnp.where(jnp.isfinite(upto), upto - before, 1.0)
     frac = jnp.clip((u - before) / jnp.maximum(wj, 1e-30), 0.0, 1.0)
-    draws = jax.lax.optimization_barrier((j.astype(jnp.float32) + frac) / J)
-    return jnp.swapaxes(draws, 1, 2)
-
-
-def _uniforms(keys: jax.Array, P: int, M: int) -> jax.Array:
-    """[B, P, M] uniforms on [0, 1): row b, pose s are the bits of
-    ``jax.random.uniform(fold_in(fold_in(keys[b], UNIFORM_STREAM), s), (M,))``
-    (Threefry-2x32, its counters (0, m)), computed by the plain ``jnp`` Threefry
-    of :func:`legs_jax.core.sampling.threefry2x32` (one fused pass; ``jax.random``
-    runs its rounds as a loop over arrays in memory)."""
-    k0, k1 = sampling.key_words(keys)  # [B, 1] each
-    zero = jnp.uint32(0)
-    # fold_in(k, d) is Threefry of the counter (0, d) under k
-    a0, a1 = sampling.threefry2x32(k0, k1, zero, jnp.uint32(UNIFORM_STREAM))
-    s0, s1 = sampling.threefry2x32(a0, a1, zero, jnp.arange(P, dtype=jnp.uint32))
-    m = jnp.arange(M, dtype=jnp.uint32)
-    w0, w1 = sampling.threefry2x32(s0[..., None], s1[..., None], zero, m)
-    # jax.random.uniform: 23 bits as the mantissa of a float in [1, 2), minus 1
-    bits = ((w0 ^ w1) >> jnp.uint32(9)) | jnp.uint32(0x3F800000)
-    return jax.lax.bitcast_convert_type(bits, jnp.float32) - jnp.float32(1.0)
+    return jnp.swapaxes((j.astype(jnp.float32) + frac) / J, 1, 2)
