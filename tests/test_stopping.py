@@ -90,6 +90,48 @@ def test_a_pose_without_attempts_gets_the_uniform_prior():
     np.testing.assert_allclose(post, 1 / stopping.GRID, rtol=1e-6)
 
 
+def _draws_by_reductions(keys, post, num_samples):
+    """draw_values as first written: the bin search by reductions over a
+    trailing J axis of [B, M, P, J] (the draws must not change by a bit)."""
+    import jax.numpy as jnp
+
+    B, P, J = post.shape
+
+    def row(k):
+        k = jax.random.fold_in(k, stopping.UNIFORM_STREAM)
+        return jax.vmap(
+            lambda s: jax.random.uniform(jax.random.fold_in(k, s), (num_samples,))
+        )(jnp.arange(P))
+
+    u = jnp.swapaxes(jax.vmap(row)(keys), 1, 2)  # [B, M, P]
+    cdf = jnp.cumsum(post, axis=-1)[:, None]
+    below = cdf <= u[..., None]
+    j = jnp.minimum(jnp.sum(below, axis=-1), J - 1)
+    before = jnp.max(jnp.where(below, cdf, 0.0), axis=-1)
+    upto = jnp.min(jnp.where(below, jnp.inf, cdf), axis=-1)
+    wj = jnp.where(jnp.isfinite(upto), upto - before, 1.0)
+    frac = jnp.clip((u - before) / jnp.maximum(wj, 1e-30), 0.0, 1.0)
+    return (j.astype(jnp.float32) + frac) / J
+
+
+def test_draws_are_bit_identical_to_the_bin_search_by_reductions():
+    rng = np.random.default_rng(3)
+    for i, (B, P, M) in enumerate([(7, 5, 300), (1, 1, 1), (3, 12, 64)]):
+        post = rng.dirichlet(np.full(stopping.GRID, [0.05, 1.0, 10.0][i]), (B, P))
+        post = post.astype(np.float32)
+        post[0, 0] = 0.0
+        post[0, 0, rng.integers(stopping.GRID)] = 1.0  # one bin: zeros around it
+        post[-1, -1, : stopping.GRID // 2] = 0.0  # empty bins first
+        post[-1, -1] /= post[-1, -1].sum()
+        keys = jax.random.split(jax.random.key(i), B)
+        got = np.asarray(jax.jit(stopping.draw_values, static_argnums=2)(keys, post, M))
+        want = np.asarray(
+            jax.jit(_draws_by_reductions, static_argnums=2)(keys, post, M)
+        )
+        assert got.shape == (B, M, P)
+        assert got.tobytes() == want.tobytes()
+
+
 def test_draws_follow_the_histogram_posterior():
     post = np.zeros((1, 1, stopping.GRID), np.float32)
     post[0, 0, [3, 12]] = [0.25, 0.75]
