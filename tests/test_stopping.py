@@ -231,6 +231,14 @@ def test_bound_design_scores_checks_and_refuses_bad_sizes(capsys):
 
     got = bound_design.score([0.5, 0.7, 0.9], [0.6, 0.6, 0.9])
     assert got == {"valid": 2 / 3, "below": pytest.approx(0.0 / 3), "checks": 3}
+    # two runs of three checks (steps 100, 200, 300), H = 300: the first
+    # reaches 0.8 at its second check, where its truth is 0.85 (right); the
+    # second at its third, truth 0.7 (wrong); at 0.9 neither stops
+    bound = np.array([[0.5, 0.8, 0.9], [0.1, 0.2, 0.8]])
+    truth = np.array([[0.9, 0.85, 0.95], [0.9, 0.9, 0.7]])
+    assert bound_design.stopping(bound, truth, 0.8, 300) == (2, 0.5, 250.0)
+    n, share, step = bound_design.stopping(bound, truth, 0.95, 300)
+    assert (n, step) == (0, 300.0) and np.isnan(share)
     with pytest.raises(SystemExit) as e:
         bound_design.main(["--rollouts", "0"])
     assert e.value.code == 2

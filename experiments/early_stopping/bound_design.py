@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.early_stopping.sweep import RHO_MIN  # Fig. 4's thresholds
+
 ROOT = Path(__file__).resolve().parents[2]
 VARIANTS = {"shipped": False, "leave-out": True}
 
@@ -36,6 +38,22 @@ def score(bound: np.ndarray, truth: np.ndarray) -> dict[str, float]:
         "below": float(np.mean(truth - bound)),
         "checks": int(bound.size),
     }
+
+
+def stopping(bound: np.ndarray, truth: np.ndarray, rho: float, horizon: int):
+    """Stopping at the first check whose bound reaches ``rho``: (runs stopped,
+    share of them whose true performance there is at least ``rho``, mean
+    stopping step with H for a run that never stops). Arrays [..., C2], checks
+    every 100 steps."""
+    b = np.asarray(bound).reshape(-1, np.shape(bound)[-1])
+    t = np.asarray(truth).reshape(b.shape)
+    hit = b >= rho
+    stopped = hit.any(axis=1)
+    first = np.argmax(hit, axis=1)
+    right = t[np.arange(len(b)), first] >= rho
+    steps = np.where(stopped, 100 * (first + 1), horizon)
+    share = float(right[stopped].mean()) if stopped.any() else float("nan")
+    return int(stopped.sum()), share, float(steps.mean())
 
 
 def study(set_name: str, trials: int, rollouts: int, horizon: int, progress: bool):
@@ -84,8 +102,31 @@ def main(argv=None) -> int:
         pooled = [
             np.concatenate([got[(o, name)][k].ravel() for o in objects]) for k in (0, 1)
         ]
+        stops = {
+            rho: stopping(
+                np.concatenate(
+                    [
+                        got[(o, name)][0].reshape(-1, got[(o, name)][0].shape[-1])
+                        for o in objects
+                    ]
+                ),
+                np.concatenate(
+                    [
+                        got[(o, name)][1].reshape(-1, got[(o, name)][1].shape[-1])
+                        for o in objects
+                    ]
+                ),
+                rho,
+                a.horizon,
+            )
+            for rho in RHO_MIN
+        }
         rows[name] = {
             **score(*pooled),
+            "stopped_right_min": min(
+                (v[1] for v in stops.values() if v[0]), default=float("nan")
+            ),
+            "stops": {str(r): v for r, v in stops.items()},
             "per_object": {o: score(*got[(o, name)])["valid"] for o in objects},
         }
     if a.json:
@@ -95,6 +136,16 @@ def main(argv=None) -> int:
     print(f"{'variant':<10} {'checks':>7} {'valid':>7} {'truth - bound':>14}")
     for name, r in rows.items():
         print(f"{name:<10} {r['checks']:>7} {r['valid']:>7.1%} {r['below']:>14.4f}")
+    print(
+        "stopping at the first check with bound >= rho_min: runs stopped, share "
+        "of them truly >= rho_min, mean stopping step"
+    )
+    for rho in RHO_MIN:
+        print(f"  rho_min {rho:.2f}: " + "; ".join(
+            f"{name} {n} {share:.1%} {step:.0f}"
+            for name in VARIANTS
+            for n, share, step in [rows[name]["stops"][str(rho)]]
+        ))  # fmt: skip
     print("valid per object: " + ", ".join(
         f"{o} {rows['shipped']['per_object'][o]:.0%} -> "
         f"{rows['leave-out']['per_object'][o]:.0%}" for o in objects
