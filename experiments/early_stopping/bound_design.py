@@ -99,30 +99,19 @@ def main(argv=None) -> int:
     objects = sorted({o for o, _ in got})
     rows = {}
     for name in VARIANTS:
-        pooled = [
-            np.concatenate([got[(o, name)][k].ravel() for o in objects]) for k in (0, 1)
-        ]
-        stops = {
-            rho: stopping(
-                np.concatenate(
-                    [
-                        got[(o, name)][0].reshape(-1, got[(o, name)][0].shape[-1])
-                        for o in objects
-                    ]
-                ),
-                np.concatenate(
-                    [
-                        got[(o, name)][1].reshape(-1, got[(o, name)][1].shape[-1])
-                        for o in objects
-                    ]
-                ),
-                rho,
-                a.horizon,
+        # [runs, C2] of every object, joined once (score() flattens them)
+        bound, truth = (
+            np.concatenate(
+                [
+                    got[(o, name)][k].reshape(-1, got[(o, name)][k].shape[-1])
+                    for o in objects
+                ]
             )
-            for rho in RHO_MIN
-        }
+            for k in (0, 1)
+        )
+        stops = {rho: stopping(bound, truth, rho, a.horizon) for rho in RHO_MIN}
         rows[name] = {
-            **score(*pooled),
+            **score(bound, truth),
             "stopped_right_min": min(
                 (v[1] for v in stops.values() if v[0]), default=float("nan")
             ),
