@@ -14,8 +14,9 @@ from legs_jax.core import engine, stopping
 
 
 def test_eb_posterior_is_the_prior_reweighted_by_the_grasps_likelihood():
-    # One pose, every grasp tried: the fit is the EM fixpoint, and the rec's
-    # posterior is that prior times Binomial likelihood at the bin centres.
+    # One pose, every grasp tried: the fit is the EM fixpoint over the other
+    # grasps (the recommended one left out, the default), and the rec's
+    # posterior is that prior times its Binomial likelihood at the bin centres.
     rng = np.random.default_rng(0)
     succ = rng.integers(0, 6, (1, 1, 40)).astype(np.float32)
     fail = rng.integers(0, 6, (1, 1, 40)).astype(np.float32)
@@ -25,6 +26,16 @@ def test_eb_posterior_is_the_prior_reweighted_by_the_grasps_likelihood():
     post = np.asarray(stopping.eb_posterior(succ, fail, fit, rec))[0, 0]
     theta = (np.arange(stopping.GRID) + 0.5) / stopping.GRID
     lik = stats.binom.pmf(succ[0, 0, :, None], (succ + fail)[0, 0, :, None], theta)
+    w = np.full(stopping.GRID, 1 / stopping.GRID)
+    others = np.arange(40) != 7
+    for _ in range(stopping.EM_ITERATIONS):
+        r = w * lik[others]
+        w = (r / r.sum(1, keepdims=True)).mean(0)
+    want = w * lik[7]
+    np.testing.assert_allclose(post, want / want.sum(), atol=2e-5)
+    # leave_out_rec=False (the previous round's fit): all 40 grasps shape G_s
+    post = stopping.eb_posterior(succ, fail, fit, rec, leave_out_rec=False)
+    post = np.asarray(post)[0, 0]
     w = np.full(stopping.GRID, 1 / stopping.GRID)
     for _ in range(stopping.EM_ITERATIONS):
         r = w * lik
@@ -58,8 +69,8 @@ def test_forgotten_grasps_enter_the_fit_like_kept_ones():
 
 
 def test_leave_out_fits_the_prior_without_the_recommended_grasp():
-    """leave_out_rec: G_s is fitted to the other grasps only, and the
-    recommended grasp's own likelihood still weighs its posterior."""
+    """leave_out_rec (the default): G_s is fitted to the other grasps only,
+    and the recommended grasp's own likelihood still weighs its posterior."""
     rng = np.random.default_rng(2)
     succ = rng.integers(0, 6, (2, 3, 20)).astype(np.float32)
     fail = rng.integers(0, 6, (2, 3, 20)).astype(np.float32)
@@ -67,11 +78,11 @@ def test_leave_out_fits_the_prior_without_the_recommended_grasp():
     rec = np.zeros(succ.shape, bool)
     rec[..., 4] = True
     fit[..., 4] = True
-    out = np.asarray(stopping.eb_posterior(succ, fail, fit, rec, leave_out_rec=True))
+    out = np.asarray(stopping.eb_posterior(succ, fail, fit, rec))
     # the recommended grasp's outcomes changed: the fit of G_s does not move
     more = succ.copy()
     more[..., 4] += 30
-    moved = np.asarray(stopping.eb_posterior(more, fail, fit, rec, leave_out_rec=True))
+    moved = np.asarray(stopping.eb_posterior(more, fail, fit, rec))
     none = np.zeros_like(rec)  # no recommendation: the posterior is G_s itself
     prior = np.asarray(stopping.eb_posterior(succ, fail, fit & ~rec, none))
     theta = (np.arange(stopping.GRID) + 0.5) / stopping.GRID
@@ -79,9 +90,10 @@ def test_leave_out_fits_the_prior_without_the_recommended_grasp():
         lik = theta ** s[..., 4:5] * (1 - theta) ** fail[..., 4:5]
         want = prior * lik
         np.testing.assert_allclose(post, want / want.sum(-1, keepdims=True), atol=2e-5)
-    # shipped: the recommended grasp's own outcomes also shape G_s
-    shipped = np.asarray(stopping.eb_posterior(succ, fail, fit, rec))
-    assert np.abs(shipped - out).max() > 1e-3
+    # leave_out_rec=False: the recommended grasp's own outcomes also shape G_s
+    with_rec = stopping.eb_posterior(succ, fail, fit, rec, leave_out_rec=False)
+    with_rec = np.asarray(with_rec)
+    assert np.abs(with_rec - out).max() > 1e-3
 
 
 def test_a_pose_without_attempts_gets_the_uniform_prior():
@@ -190,8 +202,8 @@ def _synthetic_checks(n_problems: int, seed: int):
 
 @pytest.mark.parametrize("leave_out_rec", [False, True])
 def test_miss_rate_is_at_most_delta_stop_where_the_model_holds(leave_out_rec):
-    """Shipped, and with G_s fitted without the recommended grasp's outcomes
-    (the design under study, experiments/early_stopping/bound_design.py)."""
+    """With G_s fitted without the recommended grasp's outcomes (shipped) and
+    with them (the previous round's fit, experiments/early_stopping/bound_design.py)."""
     n = 400
     counts, observed, succ, fail, rec, plug_in, truth = _synthetic_checks(n, 23)
     N = succ.shape[-1]

@@ -449,7 +449,7 @@ def simulate(
     record_active_set: bool = False,
     trajectory: bool = False,
     dirichlet: bool = True,
-    eb_leave_out_rec: bool = False,
+    eb_leave_out_rec: bool = True,
 ) -> dict[str, jax.Array]:
     """Run B rollouts of ``method`` for ``horizon`` steps (pure; jit- and vmap-able).
 
@@ -471,7 +471,8 @@ def simulate(
         :func:`run` compiles once and shares between methods).
       eb_leave_out_rec: our bound with G_s fitted without the recommended
         grasp's own outcomes (``leave_out_rec`` of
-        :func:`legs_jax.core.stopping.eb_posterior`; a design under study).
+        :func:`legs_jax.core.stopping.eb_posterior`; the default; False: the
+        previous round's fit, with them).
     Returns:
       dict of arrays with leading axis B: ``gaps`` [B, 1 + H // L] (steps 0, L,
       2L, ...; L = gcd(record_every, check_every)), ``final_gap``,
@@ -853,7 +854,7 @@ def run(
     check_every: int | None = 100,
     stop_variant_attempted: bool = True,
     record_active_set: bool = False,
-    eb_leave_out_rec: bool = False,
+    eb_leave_out_rec: bool = True,
     devices: Sequence[jax.Device] | None = None,
     batch_size: int | None = None,
     progress: bool | Callable[[int], Any] | None = None,
@@ -881,7 +882,7 @@ def run(
         (else that field is NaN).
       record_active_set: return each pose's active set at each check.
       eb_leave_out_rec: our bound's G_s fitted without the recommended grasp's
-        own outcomes (:func:`simulate`; a design under study, off by default).
+        own outcomes (:func:`simulate`; the default).
       devices: devices to shard the rollouts over (default: all local devices).
         On CPU, JAX shows one device unless ``XLA_FLAGS`` holds
         ``--xla_force_host_platform_device_count=<cores>`` before JAX starts;
