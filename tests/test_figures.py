@@ -172,6 +172,30 @@ def test_early_stopping_reports_ours_on_both_sets(world):
         assert f"{100 * acc:.1f} %" in row and f"{100 * tight:.2f} %" in row
     report = (world["out1"] / "REPORT.md").read_text()
     assert "Ours on the EGAD! evaluation set (held out" in report
+    # Stopping on ours, per set, recomputed run by run: the lowest share of
+    # stopped runs truly above rho_min over the thresholds where one stopped.
+    from experiments.early_stopping.sweep import RHO_MIN
+
+    for c, label in ((es, "Dex-Net Adversarial"), (held, "EGAD! evaluation")):
+        worst = None
+        for rho in RHO_MIN:
+            ok = []
+            for _, run in c.groupby(["object", "trial", "rollout"]):
+                hit = run.sort_values("step")
+                hit = hit[hit["p_lower_eb"] >= rho]
+                if len(hit):
+                    ok.append(hit["true_performance"].iloc[0] >= rho)
+            if ok and (worst is None or np.mean(ok) < worst[0]):
+                worst = (np.mean(ok), rho)
+        line = next(
+            x
+            for x in report.splitlines()
+            if x.startswith(f"- Stopping on ours ({label}")
+        )
+        if worst is None:
+            assert "no run stopped" in line
+        else:
+            assert f"at least {100 * worst[0]:.1f} % (at ρ_min = {worst[1]:.2f}" in line
 
 
 def test_early_stopping_values(world):
