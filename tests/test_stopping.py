@@ -239,20 +239,28 @@ def test_miss_rate_is_at_most_delta_stop_where_the_model_holds(leave_out_rec):
 
 
 def test_bound_design_scores_checks_and_refuses_bad_sizes(capsys):
-    """The design study's scoring (valid: bound at most the truth) and its
-    command line's refusal of an empty run, in one line."""
+    """The design study's checks, scored by the report's functions (valid: bound
+    at most the truth), and its command line's refusal of an empty run."""
     from experiments.early_stopping import bound_design
+    from legs_jax.report import analysis as an
 
-    got = bound_design.score([0.5, 0.7, 0.9], [0.6, 0.6, 0.9])
-    assert got == {"valid": 2 / 3, "below": pytest.approx(0.0 / 3), "checks": 3}
+    steps = np.array([100, 200, 300])
+    one = bound_design.checks_frame("a", [[0.5, 0.7, 0.9]], [[0.6, 0.6, 0.9]], steps)
+    got = an.bound_summary(one).iloc[0]
+    assert (got["accuracy"], got["n_checks"]) == (2 / 3, 3)
+    assert got["tightness"] == pytest.approx(0.0 / 3)
     # two runs of three checks (steps 100, 200, 300), H = 300: the first
     # reaches 0.8 at its second check, where its truth is 0.85 (right); the
     # second at its third, truth 0.7 (wrong); at 0.9 neither stops
     bound = np.array([[0.5, 0.8, 0.9], [0.1, 0.2, 0.8]])
     truth = np.array([[0.9, 0.85, 0.95], [0.9, 0.9, 0.7]])
-    assert bound_design.stopping(bound, truth, 0.8, 300) == (2, 0.5, 250.0)
-    n, share, step = bound_design.stopping(bound, truth, 0.95, 300)
-    assert (n, step) == (0, 300.0) and np.isnan(share)
+    runs = bound_design.checks_frame("a", bound, truth, steps)
+    sens = an.stopping_sensitivity(runs, [0.8, 0.95], 300).set_index("rho_min")
+    r = sens.loc[0.8]
+    assert (r["n_stopped"], r["accuracy"], r["mean_stop_step"]) == (2, 0.5, 250.0)
+    r = sens.loc[0.95]
+    assert (r["n_stopped"], r["mean_stop_step"]) == (0, 300.0)
+    assert np.isnan(r["accuracy"])
     with pytest.raises(SystemExit) as e:
         bound_design.main(["--rollouts", "0"])
     assert e.value.code == 2

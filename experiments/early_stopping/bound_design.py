@@ -26,41 +26,41 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from experiments.early_stopping.sweep import RHO_MIN  # Fig. 4's thresholds
+from legs_jax.report import analysis as an
 
 ROOT = Path(__file__).resolve().parents[2]
 VARIANTS = {"with-rec": False, "leave-out": True}
 
 
-def score(bound: np.ndarray, truth: np.ndarray) -> dict[str, float]:
-    """Share of checks with bound ≤ truth, and the mean of (truth − bound)."""
-    bound, truth = np.asarray(bound).ravel(), np.asarray(truth).ravel()
-    return {
-        "valid": float(np.mean(bound <= truth)),
-        "below": float(np.mean(truth - bound)),
-        "checks": int(bound.size),
-    }
-
-
-def stopping(bound: np.ndarray, truth: np.ndarray, rho: float, horizon: int):
-    """Stopping at the first check whose bound reaches ``rho``: (runs stopped,
-    share of them whose true performance there is at least ``rho``, mean
-    stopping step with H for a run that never stops). Arrays [..., C2], checks
-    every 100 steps."""
-    b = np.asarray(bound).reshape(-1, np.shape(bound)[-1])
-    t = np.asarray(truth).reshape(b.shape)
-    hit = b >= rho
-    stopped = hit.any(axis=1)
-    first = np.argmax(hit, axis=1)
-    right = t[np.arange(len(b)), first] >= rho
-    steps = np.where(stopped, 100 * (first + 1), horizon)
-    share = float(right[stopped].mean()) if stopped.any() else float("nan")
-    return int(stopped.sum()), share, float(steps.mean())
+def checks_frame(
+    obj: str, bound: np.ndarray, truth: np.ndarray, steps: np.ndarray
+) -> pd.DataFrame:
+    """The checks of one object as the report reads them (one row per check:
+    object, trial, rollout, step, ``p_lower_eb``, true_performance), so that
+    the study scores them with the report's own :func:`bound_summary` and
+    :func:`stopping_sensitivity`. ``bound``, ``truth``: [..., R, C2] (runs of
+    one object; the leading axes are its trials) at the check ``steps`` [C2]."""
+    bound = np.asarray(bound, np.float64)
+    bound = bound.reshape((-1,) + bound.shape[-2:])
+    T, R, C = bound.shape
+    t, r, c = np.meshgrid(np.arange(T), np.arange(R), np.arange(C), indexing="ij")
+    return pd.DataFrame(
+        dict(
+            object=obj,
+            trial=t.ravel(),
+            rollout=r.ravel(),
+            step=np.asarray(steps)[c.ravel()],
+            p_lower_eb=bound.ravel(),
+            true_performance=np.asarray(truth, np.float64).ravel(),
+        )
+    )
 
 
 def study(set_name: str, trials: int, rollouts: int, horizon: int, progress: bool):
-    """Per object and variant: (bound, truth) arrays of every check."""
+    """Per object and variant: the checks (:func:`checks_frame`)."""
     from tqdm.auto import tqdm
 
     from legs_jax.core import engine, problem
@@ -78,7 +78,9 @@ def study(set_name: str, trials: int, rollouts: int, horizon: int, progress: boo
                 horizon=horizon, check_every=100, eb_leave_out_rec=leave_out,
                 progress=False,
             )  # fmt: skip
-            out[(pb.name, name)] = (r.check_p_lower_eb, r.check_true_performance)
+            out[(pb.name, name)] = checks_frame(
+                pb.name, r.check_p_lower_eb, r.check_true_performance, r.check_steps
+            )
     return out
 
 
@@ -102,24 +104,25 @@ def main(argv=None) -> int:
     objects = sorted({o for o, _ in got})
     rows = {}
     for name in VARIANTS:
-        # [runs, C2] of every object, joined once (score() flattens them)
-        bound, truth = (
-            np.concatenate(
-                [
-                    got[(o, name)][k].reshape(-1, got[(o, name)][k].shape[-1])
-                    for o in objects
-                ]
-            )
-            for k in (0, 1)
-        )
-        stops = {rho: stopping(bound, truth, rho, a.horizon) for rho in RHO_MIN}
+        checks = pd.concat([got[(o, name)] for o in objects], ignore_index=True)
+        pooled = an.bound_summary(checks).iloc[0]
+        per_object = an.bound_summary(checks, by_object=True)
+        sens = an.stopping_sensitivity(checks, RHO_MIN, a.horizon)
+        stops = {
+            rho: (int(x.n_stopped), float(x.accuracy), float(x.mean_stop_step))
+            for rho, x in zip(RHO_MIN, sens.itertuples(), strict=True)
+        }
         rows[name] = {
-            **score(bound, truth),
+            "valid": float(pooled["accuracy"]),
+            "below": float(pooled["tightness"]),
+            "checks": int(pooled["n_checks"]),
             "stopped_right_min": min(
                 (v[1] for v in stops.values() if v[0]), default=float("nan")
             ),
             "stops": {str(r): v for r, v in stops.items()},
-            "per_object": {o: score(*got[(o, name)])["valid"] for o in objects},
+            "per_object": dict(
+                zip(per_object["object"], per_object["accuracy"], strict=True)
+            ),
         }
     if a.json:
         print(json.dumps({"set": a.set, **vars(a), "variants": rows}))
