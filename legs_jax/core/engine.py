@@ -362,8 +362,9 @@ class AgentStep(NamedTuple):
     rec: jax.Array  # [B, P] i32 π_t, the grasped pose's entry refreshed
     new: jax.Array  # [B] bool the (pose, grasp) had never been attempted
     removed: jax.Array  # [B] i32 grasps the prune took out
-    lost: jax.Array  # [B, P, CELLS] f32 those grasps per (S, F) cell (no cells
-    # unless :func:`forgets`)
+    forgotten: jax.Array  # [B, P, CELLS] f32 every grasp a prune has taken out
+    # so far, per (S, F) cell: ``forgotten`` plus this step's (no cells unless
+    # :func:`forgets`)
 
 
 def forgets(method: Method) -> bool:
@@ -385,6 +386,7 @@ def agent_step(
     reward: jax.Array,
     live: jax.Array,
     t: jax.Array,
+    forgotten: jax.Array | None = None,
 ) -> AgentStep:
     """The agent's half of step t after the world answered (pure): the method's
     update → its prune of pose s where its ``prune_due`` says so → the
@@ -397,11 +399,16 @@ def agent_step(
         (``rows`` None: the recommendation reads the updated state).
       reward, live: [B] bool outcome, pose has a valid grasp (reward implies live).
       t: i32 scalar, the step (1-based).
+      forgotten: [B, P, CELLS] f32 the grasps earlier prunes forgot (our bound's
+        counts, :func:`legs_jax.core.stopping.forgotten_cells`); None: none yet.
+        Added to only on a step that prunes (not a [B, P, CELLS] sum a step).
     """
     m = method
     B, P = rec.shape
     removed = jnp.zeros(B, jnp.int32)
     lost = jnp.zeros((B, P, stopping.CELLS if forgets(m) else 0), jnp.float32)
+    if forgotten is not None:
+        lost = forgotten
     state, new = m.update(state, ctx, cfg, s, grasp, slot, reward, live)
     due = None
     if m.prune is not None:
@@ -415,7 +422,7 @@ def agent_step(
             gone = stopping.forgotten_cells(
                 m.counts(st, ctx, cfg), m.counts(st2, ctx, cfg)
             )
-            return st2, n, gone
+            return st2, n, lost + gone
 
         state, removed, lost = jax.lax.cond(
             jnp.any(due), prune, lambda st: (st, removed, lost), state
@@ -522,8 +529,9 @@ def simulate(
             inside = m.candidates(c.mstate, ctx, cfg)[bi, s, grasp]
             traj = (s, jnp.where(live, grasp, -1), reward, live, inside | ~live)
         a = agent_step(
-            m, c.mstate, c.rec, ctx, cfg, s, grasp, slot, rows, reward, live, t
-        )
+            m, c.mstate, c.rec, ctx, cfg, s, grasp, slot, rows, reward, live, t,
+            c.forgotten,
+        )  # fmt: skip
         s_next = env.pose
         c = _Loop(
             s=s_next,
@@ -531,7 +539,7 @@ def simulate(
             drops=c.drops.at[bi, s_next].add(reward.astype(jnp.int32)),
             observed=c.observed.at[bi, s_next].set(True),
             visited=c.visited.at[bi, s].set(c.visited[bi, s] | live),
-            forgotten=c.forgotten + a.lost,
+            forgotten=a.forgotten,
             successes=c.successes + reward,
             distinct=c.distinct + a.new,
             replacements=c.replacements + a.removed,

@@ -85,8 +85,13 @@ def forgotten_cells(before, after) -> jax.Array:
     cell = jnp.minimum(succ, CAP - 1).astype(jnp.int32) * CAP + jnp.minimum(
         fail, CAP - 1
     ).astype(jnp.int32)
-    onehot = (cell[..., None] == jnp.arange(CELLS)) & gone[..., None]
-    return jnp.sum(onehot, axis=2, dtype=jnp.float32)
+    # A scatter-add of the forgotten columns (exact integer counts; a one-hot
+    # [B, P, N, CELLS] cost 64 passes over the columns).
+    B, P, _ = cell.shape
+    b = jnp.arange(B)[:, None, None]
+    p = jnp.arange(P)[None, :, None]
+    out = jnp.zeros((B, P, CELLS), jnp.float32)
+    return out.at[b, p, cell].add(gone.astype(jnp.float32))
 
 
 def _log_lik(succ: jax.Array, fail: jax.Array) -> jax.Array:
@@ -124,24 +129,32 @@ def eb_posterior(
     ll = _log_lik(succ.astype(jnp.float32), fail.astype(jnp.float32))
     own = jnp.sum(jnp.where(rec[..., None], ll, 0.0), axis=2)  # [B, P, J]
     m = (fit & ~rec if leave_out_rec else fit).astype(jnp.float32)
+    lik = jnp.exp(ll - jnp.max(ll, axis=-1, keepdims=True))  # [B, P, N, J]
+    n = jnp.sum(m, axis=-1)
     if forgotten is not None:
+        # The cells' likelihoods are one [CELLS, J] matrix shared by every pose.
         cs = jnp.arange(CELLS) // CAP
         cf = jnp.arange(CELLS) % CAP
-        cell_ll = jnp.broadcast_to(
-            _log_lik(cs.astype(jnp.float32), cf.astype(jnp.float32)),
-            ll.shape[:2] + (CELLS, GRID),
-        )
-        ll = jnp.concatenate([ll, cell_ll], axis=2)
-        m = jnp.concatenate([m, forgotten.astype(jnp.float32)], axis=2)
-    lik = jnp.exp(ll - jnp.max(ll, axis=-1, keepdims=True))  # [B, P, N, J]
-    any_fit = jnp.sum(m, axis=-1) > 0
-    n_fit = jnp.maximum(jnp.sum(m, axis=-1), 1.0)[..., None]
-    m = m[..., None]
+        cell_ll = _log_lik(cs.astype(jnp.float32), cf.astype(jnp.float32))
+        cell_lik = jnp.exp(cell_ll - jnp.max(cell_ll, axis=-1, keepdims=True))
+        mc = forgotten.astype(jnp.float32)
+        n = n + jnp.sum(mc, axis=-1)
+    any_fit = n > 0
+    n_fit = jnp.maximum(n, 1.0)[..., None]
+
+    def ratio(weight, denom):  # weight / denom, 0 where nothing is weighed
+        return jnp.where(weight > 0, weight / jnp.where(weight > 0, denom, 1.0), 0.0)
 
     def em(w, _):  # w [B, P, J]
-        r = w[:, :, None, :] * lik
-        r = r / jnp.sum(r, axis=-1, keepdims=True)
-        return jnp.sum(m * r, axis=2) / n_fit, None
+        # w'_j = w_j Σ_i m_i L_ij / (Σ_k L_ik w_k) / n: two matrix-vector
+        # products a pose instead of the responsibilities [B, P, N, J] (one
+        # division a column, not one a column and bin).
+        d = jnp.einsum("bpnj,bpj->bpn", lik, w)
+        g = jnp.einsum("bpn,bpnj->bpj", ratio(m, d), lik)
+        if forgotten is not None:
+            dc = jnp.einsum("cj,bpj->bpc", cell_lik, w)
+            g = g + jnp.einsum("bpc,cj->bpj", ratio(mc, dc), cell_lik)
+        return w * g / n_fit, None
 
     w0 = jnp.full(succ.shape[:2] + (GRID,), 1.0 / GRID, jnp.float32)
     w, _ = jax.lax.scan(em, w0, None, length=EM_ITERATIONS)

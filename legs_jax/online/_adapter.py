@@ -138,16 +138,15 @@ def _programs(method: str, cfg: Config):
         grasp, slot, _ = m.select(ms, ctx(tables, hp), cfg, s, key)
         return grasp, slot
 
-    def tell(ms, rec, tables, hp, s, grasp, slot, reward, t):
+    def tell(ms, rec, tables, hp, s, grasp, slot, reward, t, forgotten):
         live = tables.n_valid[0, s] > 0
         a = engine.agent_step(
             m, ms, rec, ctx(tables, hp), cfg, s, grasp, slot, None, reward & live,
-            live, t,
+            live, t, forgotten if engine.forgets(m) else None,
         )  # fmt: skip
-        lost = a.lost  # our bound keeps the grasps a prune forgets
-        if not engine.forgets(m):
-            lost = jnp.zeros((1, P, stopping.CELLS), jnp.float32)
-        return a.state, a.rec, a.new, a.removed, lost
+        # our bound keeps the grasps a prune forgets
+        kept = a.forgotten if engine.forgets(m) else forgotten
+        return a.state, a.rec, a.new, a.removed, kept
 
     def estimates(ms, tables, hp):
         return m.estimates(ms, ctx(tables, hp), cfg)
@@ -258,7 +257,7 @@ class Loop:
 
     def tell(self, s: int, grasp: int, slot: int, success: bool, t: int) -> dict:
         """Learn the outcome of step t; returns the engine's counters of the step."""
-        self.state, self.rec, new, removed, lost = self._fn["tell"](
+        self.state, self.rec, new, removed, self.forgotten = self._fn["tell"](
             self.state,
             self.rec,
             self._tables,
@@ -268,8 +267,8 @@ class Loop:
             np.full(1, slot, np.int32),
             np.full(1, bool(success)),
             np.int32(t),
+            self.forgotten,
         )
-        self.forgotten = self.forgotten + lost
         return {"new": bool(new[0]), "removed": int(removed[0])}
 
     def recommendation(self) -> np.ndarray:
