@@ -401,14 +401,14 @@ def agent_step(
       t: i32 scalar, the step (1-based).
       forgotten: [B, P, CELLS] f32 the grasps earlier prunes forgot (our bound's
         counts, :func:`legs_jax.core.stopping.forgotten_cells`); None: none yet.
-        Added to only on a step that prunes (not a [B, P, CELLS] sum a step).
+        A prune is of pose s: only its row of the counts changes.
     """
     m = method
     B, P = rec.shape
+    bi = jnp.arange(B)
     removed = jnp.zeros(B, jnp.int32)
-    lost = jnp.zeros((B, P, stopping.CELLS if forgets(m) else 0), jnp.float32)
-    if forgotten is not None:
-        lost = forgotten
+    track = forgets(m)
+    lost = jnp.zeros((B, stopping.CELLS if track else 0), jnp.float32)
     state, new = m.update(state, ctx, cfg, s, grasp, slot, reward, live)
     due = None
     if m.prune is not None:
@@ -416,17 +416,25 @@ def agent_step(
 
         def prune(st):
             st2, n = m.prune(st, ctx, cfg, s, live & due)
-            if not forgets(m):
+            if not track:
                 return st2, n, lost
-            # our bound fits every grasp attempted so far: keep those it forgets
+            # our bound fits every grasp attempted so far: keep count of those it
+            # forgets (a prune is of pose s: its rows only)
             gone = stopping.forgotten_cells(
-                m.counts(st, ctx, cfg), m.counts(st2, ctx, cfg)
+                tuple(x[bi, s] for x in m.counts(st, ctx, cfg)),
+                tuple(x[bi, s] for x in m.counts(st2, ctx, cfg)),
             )
-            return st2, n, lost + gone
+            return st2, n, gone
 
         state, removed, lost = jax.lax.cond(
             jnp.any(due), prune, lambda st: (st, removed, lost), state
         )
+    if forgotten is None:
+        forgotten = jnp.zeros((B, P, stopping.CELLS if track else 0), jnp.float32)
+    if track:
+        # added in place each step (zeros where nothing was pruned): cheaper
+        # than passing the [B, P, CELLS] counts through the prune's cond
+        forgotten = forgotten.at[bi, s].add(lost)
     if m.learns:
         if m.recommend_updated is None or rows is None:
             rec_s = m.recommend(state, ctx, cfg, s)
@@ -436,9 +444,8 @@ def agent_step(
                 rec_s = jax.lax.cond(
                     jnp.any(due), lambda: m.recommend(state, ctx, cfg, s), lambda: rec_s
                 )
-        bi = jnp.arange(B)
         rec = rec.at[bi, s].set(jnp.where(live, rec_s, rec[bi, s]))
-    return AgentStep(state, rec, new, removed, lost)
+    return AgentStep(state, rec, new, removed, forgotten)
 
 
 def simulate(

@@ -50,6 +50,8 @@ or failures is counted at the cap. Ground truth never enters.
 
 from __future__ import annotations
 
+import math
+
 import jax
 import jax.numpy as jnp
 
@@ -73,25 +75,28 @@ CELLS = CAP * CAP
 
 
 def forgotten_cells(before, after) -> jax.Array:
-    """[B, P, CELLS] counts of the grasps a prune made the method forget.
+    """[..., CELLS] counts of the grasps a prune made the method forget.
 
-    ``before``, ``after``: the method's ``counts`` (succ, fail, fit, ids) before
-    and after the prune. A fitted column whose grasp id changed or that is no
-    longer fitted is forgotten (a dense method keeps its pruned grasps' counts,
-    so it forgets none)."""
+    ``before``, ``after``: the method's ``counts`` (succ, fail, fit, ids), each
+    [..., N], before and after the prune (all poses [B, P, N], or one pose's rows
+    [B, N]). A fitted column whose grasp id changed or that is no longer fitted
+    is forgotten (a dense method keeps its pruned grasps' counts, so it forgets
+    none)."""
     succ, fail, fit, ids = before
     _, _, fit2, ids2 = after
     gone = fit & ((ids2 != ids) | ~fit2)
     cell = jnp.minimum(succ, CAP - 1).astype(jnp.int32) * CAP + jnp.minimum(
         fail, CAP - 1
     ).astype(jnp.int32)
-    # A scatter-add of the forgotten columns (exact integer counts; a one-hot
-    # [B, P, N, CELLS] cost 64 passes over the columns).
-    B, P, _ = cell.shape
-    b = jnp.arange(B)[:, None, None]
-    p = jnp.arange(P)[None, :, None]
-    out = jnp.zeros((B, P, CELLS), jnp.float32)
-    return out.at[b, p, cell].add(gone.astype(jnp.float32))
+    # A scatter-add of the forgotten columns, row by row (exact integer counts;
+    # a one-hot [..., N, CELLS] cost 64 passes over the columns).
+    lead, n = cell.shape[:-1], cell.shape[-1]
+    rows = math.prod(lead)
+    r = jnp.arange(rows)[:, None]
+    out = jnp.zeros((rows, CELLS), jnp.float32)
+    gone = gone.reshape(rows, n).astype(jnp.float32)
+    out = out.at[r, cell.reshape(rows, n)].add(gone)
+    return out.reshape(lead + (CELLS,))
 
 
 def _log_lik(succ: jax.Array, fail: jax.Array) -> jax.Array:
