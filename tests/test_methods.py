@@ -277,6 +277,23 @@ def test_conformance_refuses_what_breaks_the_contract():
         check_declaration(_broken(hparams=dict))
 
 
+def test_conformance_refuses_a_prune_that_changes_another_pose():
+    # our bound counts the grasps a prune forgets on the pruned pose's rows only
+    import jax.numpy as jnp
+
+    legs = methods.get("legs")
+
+    def leaky_prune(st, ctx, cfg, s, live):  # also forgets pose s + 1's counts
+        st, removed = legs.prune(st, ctx, cfg, s, live)
+        bi = jnp.arange(s.shape[0])
+        nxt = (s + 1) % cfg.num_poses
+        return st._replace(beta=st.beta.at[bi, nxt].add(1.0)), removed
+
+    leaky = dataclasses.replace(legs, name="leaky", prune=leaky_prune)
+    with pytest.raises(ConfigError, match="changed another pose's counts"):
+        conformance.check(leaky)
+
+
 def test_conformance_accepts_a_registered_method():
     conformance.check(methods.get("legs"))
 

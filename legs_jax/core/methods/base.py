@@ -230,8 +230,10 @@ class Method:
       ``new`` [B] bool: the (pose, grasp) had never been attempted.
     - ``prune`` (or None) ``(state, ctx, cfg, s, live) -> (state, removed)``: called
       after the update of a step where ``prune_due`` says so, for the pose just
-      grasped; rows with ``live`` False must not change; ``removed`` [B] i32
-      counts the grasps taken out.
+      grasped: it changes pose s only (our bound counts the grasps it forgets on
+      pose s's rows; :func:`legs_jax.core.methods.conformance.check` refuses a
+      prune that changes another pose's counts); rows with ``live`` False must
+      not change; ``removed`` [B] i32 counts the grasps taken out.
     - ``prune_due`` ``(state, ctx, cfg, s, t) -> [B]`` bool: the method's pruning
       schedule, read after the update of step t (``state`` is the updated one);
       the rows where it is False are passed to ``prune`` as not live. Needed with

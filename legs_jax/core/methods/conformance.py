@@ -7,8 +7,9 @@ ranges, the static ones among them); :func:`check` runs it on a small synthetic
 problem with padded poses and grasps, invalid grasps and a pose without any valid
 grasp, under ``jit`` and under ``jit(vmap)`` over a grid of hyperparameters, and
 checks that one program serves new keys and values (it compiles once), that it never
-selects a masked grasp or one outside its own candidate set, and that its outputs
-are finite and its counters consistent. :func:`legs_jax.core.methods.resolve` runs the
+selects a masked grasp or one outside its own candidate set, that its outputs
+are finite and its counters consistent, and that its prune (if any) changes the
+pruned pose's per-grasp counts only. :func:`legs_jax.core.methods.resolve` runs the
 first on a method from the user's module; the sweep runs both.
 """
 
@@ -133,3 +134,43 @@ def check(method: Method, horizon: int = 120, rollouts: int = 8) -> None:
         est = (o["check_p_lower"], o["check_true_performance"])
         if any(np.any((x < 0) | (x > 1 + 1e-6)) for x in est):
             _fail(method, "a stopping bound or performance outside [0, 1]")
+    if method.prune is not None and method.counts is not None:
+        _prune_keeps_other_poses(method, cfg, tables, ot, hparams(None))
+
+
+def _prune_keeps_other_poses(method: Method, cfg, tables, ot, hp) -> None:
+    """Refuse a prune of pose s that changes another pose's per-grasp counts:
+    our bound counts the grasps a prune forgets on pose s's rows only
+    (:func:`legs_jax.core.engine.agent_step`)."""
+    import jax
+    import jax.numpy as jnp
+
+    from legs_jax.core.methods.base import Ctx
+
+    B, P = ot.shape[0], cfg.num_poses
+    ctx = Ctx(tables, ot, hp)
+
+    @jax.jit
+    def run():
+        def step(st, t):  # every pose in turn, a success every third step
+            s = jnp.full(B, t % P, jnp.int32)
+            k = jax.random.split(jax.random.fold_in(jax.random.key(11), t), B)
+            grasp, slot, _ = method.select(st, ctx, cfg, s, k)
+            live = tables.n_valid[ot, s] > 0
+            st, _ = method.update(
+                st, ctx, cfg, s, grasp, slot, (t % 3 == 0) & live, live
+            )
+            return st, None
+
+        st, _ = jax.lax.scan(step, method.init(ctx, cfg), jnp.arange(24 * P))
+        s = jnp.zeros(B, jnp.int32)
+        st2, _ = method.prune(st, ctx, cfg, s, jnp.ones(B, bool))
+        return method.counts(st, ctx, cfg), method.counts(st2, ctx, cfg)
+
+    try:
+        before, after = jax.device_get(run())
+    except Exception as e:  # noqa: BLE001 - any failure of user code, in one line
+        _fail(method, f"running its prune raised {type(e).__name__}: {e}")
+    for x, y in zip(before, after, strict=True):
+        if not np.array_equal(np.asarray(x)[:, 1:], np.asarray(y)[:, 1:]):
+            _fail(method, "its prune of pose 0 changed another pose's counts")
