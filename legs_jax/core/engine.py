@@ -401,7 +401,8 @@ def agent_step(
       t: i32 scalar, the step (1-based).
       forgotten: [B, P, CELLS] f32 the grasps earlier prunes forgot (our bound's
         counts, :func:`legs_jax.core.stopping.forgotten_cells`); None: none yet.
-        A prune is of pose s: only its row of the counts changes.
+        A prune is of pose s: only its row of the counts changes. Returned
+        unchanged by a method that does not :func:`forgets`.
     """
     m = method
     B, P = rec.shape

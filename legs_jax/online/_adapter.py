@@ -140,13 +140,13 @@ def _programs(method: str, cfg: Config):
 
     def tell(ms, rec, tables, hp, s, grasp, slot, reward, t, forgotten):
         live = tables.n_valid[0, s] > 0
+        # the grasps a prune forgets, kept for our bound (passed through
+        # unchanged by a method that forgets none)
         a = engine.agent_step(
             m, ms, rec, ctx(tables, hp), cfg, s, grasp, slot, None, reward & live,
-            live, t, forgotten if engine.forgets(m) else None,
+            live, t, forgotten,
         )  # fmt: skip
-        # our bound keeps the grasps a prune forgets
-        kept = a.forgotten if engine.forgets(m) else forgotten
-        return a.state, a.rec, a.new, a.removed, kept
+        return a.state, a.rec, a.new, a.removed, a.forgotten
 
     def estimates(ms, tables, hp):
         return m.estimates(ms, ctx(tables, hp), cfg)
