@@ -113,22 +113,26 @@ def _ucb_rows(rng, rows, k, frac, grid):
     a = one + one * qc
     b = one + one * (one - qc)
     att = rng.uniform(size=(rows, k)) < frac
-    a = np.where(att, a + rng.poisson(2, (rows, k)), a).astype(np.float32)
-    b = np.where(att, b + rng.poisson(3, (rows, k)), b).astype(np.float32)
+    succ = np.where(att, rng.poisson(2, (rows, k)), 0).astype(np.float32)
+    fail = np.where(att, rng.poisson(3, (rows, k)), 0).astype(np.float32)
+    a = (a + succ).astype(np.float32)
+    b = (b + fail).astype(np.float32)
     mask = rng.uniform(size=(rows, k)) < 0.95
     for i in range(0, rows, 3):  # a tried twin of the best untried prior
         j = int(np.argmax(np.where(mask[i] & ~att[i], a[i], -1)))
         t = int(rng.integers(k))
         a[i, t], b[i, t], att[i, t], mask[i, t] = a[i, j], b[i, j], True, True
+        # counts that do not match its (α, β): its group does not run together
+        succ[i, t], fail[i, t] = 0.0, 1.0
     level = (1 - 1 / (rng.integers(0, 3000, rows) + 2.0)).astype(np.float32)
-    return level, a, b, mask, att
+    return level, a, b, mask, att, succ, fail
 
 
 @pytest.mark.parametrize("dense_from", [0.0, 2.0])
 def test_few_quantiles_choose_as_the_dense_computation(monkeypatch, dense_from):
-    """The K=2000 choice computes the quantiles of the attempted arms and of the
-    one dominant untried arm only (block by block, or in one dense pass when a row
-    has many candidates: ``dense_from`` forces either). With exact ties of q,
+    """The K=2000 choice computes the quantiles of the arms that no arm of the
+    same counts dominates (block by block, or in one dense pass when a row has
+    many candidates: ``dense_from`` forces either). With exact ties of q,
     between untried arms and between a tried and an untried arm, it equals the
     dense float32 argmax over every arm (ties: lowest id) on every row, and the
     NumPy twin's dense float64 choice wherever the twin's top two quantiles are
@@ -148,8 +152,8 @@ def test_few_quantiles_choose_as_the_dense_computation(monkeypatch, dense_from):
     )
     compared = ties = 0
     for frac in (0.0, 0.05, 0.4, 1.0):
-        level, a, b, mask, att = _ucb_rows(rng, rows, k, frac, grid=20)
-        got = np.asarray(few(level, a, b, mask, att))
+        level, a, b, mask, _, succ, fail = _ucb_rows(rng, rows, k, frac, grid=20)
+        got = np.asarray(few(level, a, b, mask, succ, fail))
         np.testing.assert_array_equal(got, dense(level, a, b, mask), err_msg=f"{frac}")
         for i in range(rows):
             if not mask[i].any():
@@ -169,12 +173,14 @@ def test_few_quantiles_choose_as_the_dense_computation(monkeypatch, dense_from):
     assert compared >= 3 * rows and ties >= rows // 3
 
 
-def test_only_a_dominated_untried_arm_can_part_from_the_dense_float32_argmax():
+def test_only_a_dominated_arm_can_part_from_the_dense_float32_argmax():
     """Where the choice over the few differs from the dense float32 argmax over
-    every arm, the dense one chose an untried arm of lower prior (α smaller, or
-    equal and β larger) whose float32 quantile rounded to at least the dominant
-    untried arm's: the exact quantile is monotone, its float32 value is not
-    strictly so. With q on a grid (exact ties only) they never differ."""
+    every arm, the dense one chose an arm that another arm of the same counts
+    dominates (α at least its, β at most, not both equal) and whose float32
+    quantile rounded to at least the chosen arm's: the exact quantile is
+    monotone, its float32 value is not strictly so. With q on a grid (exact ties
+    only) they never differ. Most arms are dominated, so few quantiles are
+    computed."""
     from legs_jax.core import sampling
     from legs_jax.core.methods import bayes_ucb_2000 as ucb
 
@@ -185,21 +191,21 @@ def test_only_a_dominated_untried_arm_can_part_from_the_dense_float32_argmax():
     dense = jax.jit(lambda lv, a, b, m: ucb.choose_dense(lv, a, b, m, ids))
     differ = 0
     for grid, frac in ((20, 0.1), (20, 0.5), (1 << 20, 0.1), (1 << 20, 0.02)):
-        level, a, b, mask, att = _ucb_rows(rng, rows, k, frac, grid)
+        level, a, b, mask, att, succ, fail = _ucb_rows(rng, rows, k, frac, grid)
         # untried priors near q = 0.99, where the quantile is close to 1
         a = np.where(att, a, 1 + np.clip(a - 1, 0.9, 0.99)).astype(np.float32)
         b = np.where(att, b, np.float32(3) - a).astype(np.float32)
-        got = np.asarray(few(level, a, b, mask, att))
+        got = np.asarray(few(level, a, b, mask, succ, fail))
         old = np.asarray(dense(level, a, b, mask))
         index = np.asarray(
             sampling.beta_ppf(np.broadcast_to(level[:, None], a.shape), a, b)
         )
-        top, _ = (np.asarray(x) for x in ucb.top_untried(a, b, mask, att))
+        dom = np.asarray(ucb.dominated(a, b, mask, succ, fail))
+        assert dom[mask].mean() > 0.5
         for i in np.flatnonzero(got != old):
             assert grid > 20
-            j, t = old[i], top[i]
-            assert not att[i, j] and got[i] == t
-            assert a[i, j] < a[i, t] or (a[i, j] == a[i, t] and b[i, j] > b[i, t])
+            j, t = old[i], got[i]
+            assert dom[i, j] and not dom[i, t]
             assert index[i, j] >= index[i, t]
             differ += 1
     print(f"{differ} rows differ")

@@ -7,9 +7,11 @@ At pose s, with t the number of grasp attempts made there so far counting this
 one, every candidate's index is the 1 − 1/(t + 1) quantile of its Beta posterior
 (SPEC §3; Kaufmann et al.'s c = 0, with t counted per pose); the highest index is
 attempted (ties: the lowest grasp id). Over all K grasps only the quantiles that
-can win are computed (:func:`choose_few`): those of the attempted grasps and of
-the one untried grasp whose prior dominates the other untried ones. The choice
-is deterministic: no random draw. Recommendation, learning and the stopping
+can win are computed (:func:`choose_few`): grasps with the same numbers of
+successes and failures differ only by their prior, so in each such group one
+grasp dominates the others (α at least theirs, β at most), and only the groups'
+dominant grasps (and the grasps of many attempts) need a quantile. The choice is
+deterministic: no random draw. Recommendation, learning and the stopping
 estimates are those of BORGES.
 :func:`make` builds it over every grasp or over the fixed top by prior
 (:mod:`legs_jax.core.methods.bayes_ucb_100`); :class:`Reference` is its NumPy twin.
@@ -30,9 +32,10 @@ from legs_jax.core.methods.base import (
     TOP_FIXED,
     Card,
     Method,
-    argmax_first,
     argmin_id_of_max,
+    beta_counts,
     gather_at,
+    gather_rows,
 )
 
 __all__ = ["METHOD", "Reference", "UCBState", "make"]
@@ -56,46 +59,59 @@ def choose_dense(lv, a, b, mask, ids) -> jax.Array:
     return argmin_id_of_max(index, mask, ids, none=0)
 
 
-def top_untried(a, b, mask, attempted) -> tuple[jax.Array, jax.Array]:
-    """The one untried arm that can hold the highest index among the untried arms
-    of a row: ([B] its grasp id, [B] bool there is one).
+# Groups of equal counts (S, F) with S, F below this; an arm of more attempts is
+# always a candidate.
+GROUP_COUNTS = 16
 
-    An untried arm still has its prior, Beta(o + s q, o + s (1 − q)): α rises and
-    β falls with q (float32 rounding is monotone), and the Beta quantile rises with
-    α and falls with β. So the untried arms of largest α, among them those of
-    smallest β, dominate all others; those have the same (α, β) bit for bit, hence
-    the same float32 quantile, and the dense argmax takes the lowest id of them.
+
+def dominated(a, b, mask, succ, fail) -> jax.Array:
+    """[B, K] bool: arms of ``mask`` whose index cannot be the row's highest, by
+    groups of equal counts (``succ``, ``fail`` [B, K], integers as floats).
+
+    Within a group the arms share their counts and differ by their prior q: the
+    arm of largest α, then smallest β, is the group's top, and an arm is
+    dominated when the top's α is at least its α and the top's β at most its β,
+    and the two are not equal (checked arm by arm, so that a group whose α and β
+    do not run together keeps its other arms). The Beta quantile rises with α and
+    falls with β, so a dominated arm's exact index is at most the top's; the arms
+    equal to the top stay candidates, and the lowest id of them wins as in the
+    dense argmax. Arms of GROUP_COUNTS or more successes or failures are never
+    dominated here.
     """
-    untried = mask & ~attempted
-    a_top = jnp.max(jnp.where(untried, a, -jnp.inf), axis=-1, keepdims=True)
-    sel = untried & (a == a_top)
-    b_top = jnp.min(jnp.where(sel, b, jnp.inf), axis=-1, keepdims=True)
-    sel = sel & (b == b_top)
-    return argmax_first(sel), jnp.any(untried, axis=-1)
+    B = a.shape[0]
+    g = GROUP_COUNTS
+    grouped = mask & (succ < g) & (fail < g)
+    gid = jnp.where(grouped, succ.astype(jnp.int32) * g + fail.astype(jnp.int32), g * g)
+    bi = jnp.arange(B)[:, None]
+    a_top = jnp.full((B, g * g + 1), -jnp.inf).at[bi, gid].max(a)
+    a_top = a_top[bi, gid]
+    b_top = jnp.full((B, g * g + 1), jnp.inf).at[bi, gid]
+    b_top = b_top.min(jnp.where(a == a_top, b, jnp.inf))[bi, gid]
+    equal = (a == a_top) & (b == b_top)
+    return grouped & (a <= a_top) & (b >= b_top) & ~equal
 
 
 # Arms whose quantile one pass of :func:`choose_few` computes, a row; where a
 # row of the batch has more candidates than DENSE_FROM K, every arm's quantile is
 # computed in one pass (and the non-candidates' ignored) instead.
-FEW = 256
+FEW = 64
 DENSE_FROM = 0.5
 
 
-def choose_few(lv, a, b, mask, attempted) -> jax.Array:
+def choose_few(lv, a, b, mask, succ, fail) -> jax.Array:
     """:func:`choose_dense` over grasp ids 0..K-1, computing only the quantiles
-    that can win: the attempted arms and the :func:`top_untried` arm.
+    that can win: those of the arms that are not :func:`dominated`.
 
     The candidates are packed, in id order, into blocks of ``FEW`` a row and their
     quantiles computed block by block until every row's are done; each value is
     the one the dense computation gets (:func:`legs_jax.core.sampling.beta_ppf` gives an
     element a value that depends on its own (q, α, β) only), and ties go to the
     lowest id. The choice equals the dense one's whenever the float32 quantile
-    is monotone across the untried arms (see README, Bayes-UCB).
+    is monotone across an arm and the arm dominating it (see README, Bayes-UCB).
     """
     B, K = a.shape
-    top, any_untried = top_untried(a, b, mask, attempted)
     ids = jax.lax.broadcasted_iota(jnp.int32, (B, K), 1)
-    cand = mask & (attempted | ((ids == top[:, None]) & any_untried[:, None]))
+    cand = mask & ~dominated(a, b, mask, succ, fail)
     most = jnp.max(jnp.sum(cand, axis=-1, dtype=jnp.int32))
     return jax.lax.cond(
         most > DENSE_FROM * K,
@@ -172,8 +188,8 @@ def make(name: str, top: bool, description: str, **card) -> Method:
             slot = jnp.argmax(ids == grasp[:, None], axis=-1).astype(jnp.int32)
             return grasp, slot, (a, b, ids)
         mask = _dense._mask_row(st.inner, ctx, s)
-        att = gather_at(st.inner.attempted, s)
-        grasp = choose_few(lv, a, b, mask, att)
+        succ, fail = beta_counts(a, b, gather_rows(ctx.tables.q, ctx.ot, s), ctx.hp)
+        grasp = choose_few(lv, a, b, mask, succ, fail)
         return grasp, grasp, (a, b, mask)
 
     def update(st, ctx, cfg, s, grasp, slot, reward, live):
