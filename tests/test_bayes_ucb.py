@@ -189,6 +189,7 @@ def test_only_a_dominated_arm_can_part_from_the_dense_float32_argmax():
     ids = jnp.broadcast_to(jnp.arange(k, dtype=jnp.int32), (rows, k))
     few = jax.jit(ucb.choose_few)
     dense = jax.jit(lambda lv, a, b, m: ucb.choose_dense(lv, a, b, m, ids))
+    ppf, dominated = jax.jit(sampling.beta_ppf), jax.jit(ucb.dominated)
     differ = 0
     for grid, frac in ((20, 0.1), (20, 0.5), (1 << 20, 0.1), (1 << 20, 0.02)):
         level, a, b, mask, att, succ, fail = _ucb_rows(rng, rows, k, frac, grid)
@@ -197,10 +198,8 @@ def test_only_a_dominated_arm_can_part_from_the_dense_float32_argmax():
         b = np.where(att, b, np.float32(3) - a).astype(np.float32)
         got = np.asarray(few(level, a, b, mask, succ, fail))
         old = np.asarray(dense(level, a, b, mask))
-        index = np.asarray(
-            sampling.beta_ppf(np.broadcast_to(level[:, None], a.shape), a, b)
-        )
-        dom = np.asarray(ucb.dominated(a, b, mask, succ, fail))
+        index = np.asarray(ppf(np.broadcast_to(level[:, None], a.shape), a, b))
+        dom = np.asarray(dominated(a, b, mask, succ, fail))
         assert dom[mask].mean() > 0.5
         for i in np.flatnonzero(got != old):
             assert grid > 20
