@@ -11,6 +11,11 @@ selects a masked grasp or one outside its own candidate set, that its outputs
 are finite and its counters consistent, and that its prune (if any) changes the
 pruned pose's per-grasp counts only. :func:`legs_jax.core.methods.resolve` runs the
 first on a method from the user's module; the sweep runs both.
+
+The cheapest check that can fail runs first, and each program's outputs are checked
+before the next program is compiled, so a broken method is refused in seconds. The
+rollouts are compiled as the sweep compiles them: the Dirichlet bounds in their own
+program, shared by every method (:func:`legs_jax.core.engine.compiled_checks`).
 """
 
 from __future__ import annotations
@@ -81,61 +86,76 @@ def check(method: Method, horizon: int = 120, rollouts: int = 8) -> None:
             vals[n] = jnp.full((b,) if g is None else (g, b), v, jnp.float32)
         return method.traced_hparams(**vals)
 
+    if method.prune is not None and method.counts is not None:
+        _prune_keeps_other_poses(method, cfg, tables, ot, hparams(None))
+    checks = engine.compiled_checks()  # one program for every method
     try:
-        fn = engine.compiled(method, cfg, horizon, check_every=40, trajectory=True)
+        fn = engine.compiled(
+            method, cfg, horizon, check_every=40, trajectory=True, dirichlet=False
+        )
         before = sum(engine.trace_counts().values())
-        outs = []
         for i in range(2):
             ks = keys.rollout_keys(i, np.full(b, 7), np.arange(b) % 2, np.arange(b))
-            outs.append(jax.device_get(fn(tables, ot, ks, hparams(None))))
+            _check_outputs(
+                method,
+                tables,
+                ot,
+                jax.device_get(checks(ks, fn(tables, ot, ks, hparams(None)))),
+            )
+        if sum(engine.trace_counts().values()) - before > 1 or fn._cache_size() != 1:
+            _fail(method, "new keys or hyperparameter values recompiled it")
         vfn = engine.compiled(
-            method, cfg, horizon, check_every=40, trajectory=True, grid=True
-        )
+            method, cfg, horizon, check_every=40, trajectory=True, grid=True,
+            dirichlet=False,
+        )  # fmt: skip
         r = np.arange(2 * b)
-        ks = keys.rollout_keys(2, np.full(2 * b, 7), r % 2, r)
-        outs.append(jax.device_get(vfn(tables, ot, ks.reshape(2, b), hparams(2))))
+        ks = keys.rollout_keys(2, np.full(2 * b, 7), r % 2, r).reshape(2, b)
+        out = jax.device_get(vfn(tables, ot, ks, hparams(2)))
+        for g in range(2):  # each grid point as a batch of the plain program's
+            one = {k: v[g] for k, v in out.items()}
+            _check_outputs(method, tables, ot, jax.device_get(checks(ks[g], one)))
     except ConfigError:
         raise
     except Exception as e:  # noqa: BLE001 - any failure of user code, in one line
         _fail(method, f"running it raised {type(e).__name__}: {e}")
-    if sum(engine.trace_counts().values()) - before > 2 or fn._cache_size() != 1:
-        _fail(method, "new keys or hyperparameter values recompiled it")
+
+
+def _check_outputs(method: Method, tables, ot, o: dict) -> None:
+    """Refuse ``method`` unless the outputs ``o`` of one batch of rollouts (the
+    Dirichlet bounds added) are as the contract says (module docstring)."""
     valid = np.asarray(tables.valid)
-    for o in outs:
-        o = {k: np.asarray(v) for k, v in o.items()}
-        for k, v in o.items():
-            if k == "check_p_lower_eb" and method.counts is None:
-                continue  # our bound is NaN by contract without per-grasp counts
-            if v.dtype.kind == "f" and not np.all(np.isfinite(v)):
-                _fail(method, f"{k} is not finite")
-        pose, grasp, live = o["pose"], o["grasp"], o["live"]
-        ot_ = np.broadcast_to(np.asarray(ot)[:, None], pose.shape)
-        if not np.array_equal(live, valid[ot_, pose].any(-1)):
-            _fail(method, "a step was live at a pose without a valid grasp")
-        out_of_range = live & ((grasp < 0) | (grasp >= valid.shape[-1]))
-        if np.any(out_of_range):
-            bad = int(grasp[out_of_range].flat[0])
-            _fail(
-                method,
-                f"it selected grasp {bad}, outside 0..{valid.shape[-1] - 1} "
-                "(the grasp ids of the padded tables)",
-            )
-        g = np.where(live, grasp, 0)
-        if not np.all(valid[ot_, pose, g][live]):
-            _fail(method, "it selected a masked (invalid or padded) grasp")
-        if not np.all(o["in_candidates"]):
-            _fail(method, "it selected a grasp outside its own candidate set")
-        if np.any(o["reward"][~live]):
-            _fail(method, "a reward at a pose without a valid grasp")
-        if not np.all(o["successes"] == o["reward"].sum(-1)):
-            _fail(method, "its successes do not match its rewards")
-        if not np.all(o["gaps"] >= -1e-6):
-            _fail(method, "a negative gap")
-        est = (o["check_p_lower"], o["check_true_performance"])
-        if any(np.any((x < 0) | (x > 1 + 1e-6)) for x in est):
-            _fail(method, "a stopping bound or performance outside [0, 1]")
-    if method.prune is not None and method.counts is not None:
-        _prune_keeps_other_poses(method, cfg, tables, ot, hparams(None))
+    o = {k: np.asarray(v) for k, v in o.items()}
+    for k, v in o.items():
+        if k == "check_p_lower_eb" and method.counts is None:
+            continue  # our bound is NaN by contract without per-grasp counts
+        if v.dtype.kind == "f" and not np.all(np.isfinite(v)):
+            _fail(method, f"{k} is not finite")
+    pose, grasp, live = o["pose"], o["grasp"], o["live"]
+    ot_ = np.broadcast_to(np.asarray(ot)[:, None], pose.shape)
+    if not np.array_equal(live, valid[ot_, pose].any(-1)):
+        _fail(method, "a step was live at a pose without a valid grasp")
+    out_of_range = live & ((grasp < 0) | (grasp >= valid.shape[-1]))
+    if np.any(out_of_range):
+        bad = int(grasp[out_of_range].flat[0])
+        _fail(
+            method,
+            f"it selected grasp {bad}, outside 0..{valid.shape[-1] - 1} "
+            "(the grasp ids of the padded tables)",
+        )
+    g = np.where(live, grasp, 0)
+    if not np.all(valid[ot_, pose, g][live]):
+        _fail(method, "it selected a masked (invalid or padded) grasp")
+    if not np.all(o["in_candidates"]):
+        _fail(method, "it selected a grasp outside its own candidate set")
+    if np.any(o["reward"][~live]):
+        _fail(method, "a reward at a pose without a valid grasp")
+    if not np.all(o["successes"] == o["reward"].sum(-1)):
+        _fail(method, "its successes do not match its rewards")
+    if not np.all(o["gaps"] >= -1e-6):
+        _fail(method, "a negative gap")
+    est = (o["check_p_lower"], o["check_true_performance"])
+    if any(np.any((x < 0) | (x > 1 + 1e-6)) for x in est):
+        _fail(method, "a stopping bound or performance outside [0, 1]")
 
 
 def _prune_keeps_other_poses(method: Method, cfg, tables, ot, hp) -> None:
@@ -170,7 +190,10 @@ def _prune_keeps_other_poses(method: Method, cfg, tables, ot, hp) -> None:
     try:
         before, after = jax.device_get(run())
     except Exception as e:  # noqa: BLE001 - any failure of user code, in one line
-        _fail(method, f"running its prune raised {type(e).__name__}: {e}")
+        _fail(
+            method,
+            f"running select, update and prune raised {type(e).__name__}: {e}",
+        )
     for x, y in zip(before, after, strict=True):
         if not np.array_equal(np.asarray(x)[:, 1:], np.asarray(y)[:, 1:]):
             _fail(method, "its prune of pose 0 changed another pose's counts")
