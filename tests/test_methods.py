@@ -294,6 +294,22 @@ def test_conformance_refuses_a_prune_that_changes_another_pose():
         conformance.check(leaky)
 
 
+def test_conformance_accepts_legs_prune():
+    """LEGS's prune changes the pruned pose's counts only. The rest of the check
+    LEGS passes is test_conformance_jit_vmap_grid[legs] (stricter), and the whole
+    check's acceptance of a method runs in tests/test_user_method.py."""
+    legs = methods.get("legs")
+    tables = conformance._setup()
+    cfg = Config(num_poses=4, num_grasps=160, k=20, n=20)
+    b = 8
+    ot = jnp.asarray(np.arange(b) % 2, jnp.int32)
+    hp = legs.traced_hparams(
+        **{n: jnp.full(b, legs.defaults()[n], jnp.float32) for n in legs.traced}
+    )
+    conformance._prune_keeps_other_poses(legs, cfg, tables, ot, hp)
+
+
+@pytest.mark.slow
 def test_conformance_accepts_a_registered_method():
     conformance.check(methods.get("legs"))
 
