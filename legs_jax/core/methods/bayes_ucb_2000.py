@@ -83,10 +83,10 @@ def dominated(a, b, mask, succ, fail) -> jax.Array:
     grouped = mask & (succ < g) & (fail < g)
     gid = jnp.where(grouped, succ.astype(jnp.int32) * g + fail.astype(jnp.int32), g * g)
     bi = jnp.arange(B)[:, None]
-    a_top = jnp.full((B, g * g + 1), -jnp.inf).at[bi, gid].max(a)
-    a_top = a_top[bi, gid]
-    b_top = jnp.full((B, g * g + 1), jnp.inf).at[bi, gid]
-    b_top = b_top.min(jnp.where(a == a_top, b, jnp.inf))[bi, gid]
+    # per group: the largest α, then the smallest β of the arms of that α
+    a_top = jnp.full((B, g * g + 1), -jnp.inf).at[bi, gid].max(a)[bi, gid]
+    b_of_top = jnp.where(a == a_top, b, jnp.inf)
+    b_top = jnp.full((B, g * g + 1), jnp.inf).at[bi, gid].min(b_of_top)[bi, gid]
     equal = (a == a_top) & (b == b_top)
     return grouped & (a <= a_top) & (b >= b_top) & ~equal
 
