@@ -317,3 +317,40 @@ def test_array_digests_name_the_array_that_differs(prob: pm.Problem) -> None:
     rob[0, 0, 0] = np.nextafter(rob[0, 0, 0], np.float32(2))
     b = pm.array_digests(dataclasses.replace(prob, robustness=rob))
     assert [k for k in a if a[k] != b[k]] == ["robustness"]
+
+
+def test_unlearnable_poses_names_dead_and_trapped_poses():
+    import dataclasses
+
+    from legs_jax import synthetic
+    from legs_jax.core.problem import describe_unlearnable, unlearnable_poses
+
+    pb = synthetic.make_problem(seed=0, num_poses=3, num_grasps=20, num_trials=2)
+    assert unlearnable_poses(pb) == []
+    valid = pb.valid.copy()
+    valid[1, 1] = False  # pose 1: no grasp in trial 1 only
+    topple = pb.topple.copy()
+    topple[2] = 0.0
+    topple[2, 2] = 1.0  # pose 2 cannot be left by a failure
+    flags = unlearnable_poses(dataclasses.replace(pb, valid=valid, topple=topple))
+    assert [f["pose"] for f in flags] == [1, 2]
+    assert flags[0]["trials_without_success"] == 1 and not flags[0]["cannot_leave"]
+    assert flags[0]["trapped_trials"] == 0
+    assert flags[1]["cannot_leave"] and flags[1]["trials_without_success"] == 0
+    assert flags[1]["landing"] == pytest.approx(float(pb.landing[2]))
+    # p = 0 everywhere counts like no valid grasp; with topple[s, s] = 1 it traps
+    rob = pb.robustness.copy()
+    rob[:, 2] = 0.0
+    flags = unlearnable_poses(dataclasses.replace(pb, robustness=rob, topple=topple))
+    assert flags == [
+        {
+            "pose": 2,
+            "landing": pytest.approx(float(pb.landing[2])),
+            "trials_without_success": 2,
+            "num_trials": 2,
+            "cannot_leave": True,
+            "trapped_trials": 2,
+        }
+    ]
+    (line,) = describe_unlearnable(flags)
+    assert "pose 2" in line and "stuck" in line and "2 of 2" in line

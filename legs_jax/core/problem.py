@@ -35,6 +35,8 @@ __all__ = [
     "load",
     "save",
     "stack",
+    "unlearnable_poses",
+    "describe_unlearnable",
 ]
 
 FORMAT_VERSION = 1
@@ -149,6 +151,63 @@ _GEOMETRY = (
 )
 # Arrays the format requires in a file. pose_valid may be absent (all poses real).
 _REQUIRED = tuple(f for f in _ARRAY_FIELDS if f != "pose_valid" and f not in _GEOMETRY)
+
+
+def unlearnable_poses(pb: Problem) -> list[dict[str, Any]]:
+    """The real poses no method can learn anything in, one dict each.
+
+    A pose is listed when in some trial none of its grasps can succeed (no valid
+    grasp, or every valid grasp has ground truth p = 0), or when a failed grasp
+    always leaves the object where it was (``topple[s, s] = 1``: the pose cannot be
+    left but by a success). A pose with both is a trap: a rollout that lands there
+    stays there for the rest of its horizon, whatever the method does. Keys:
+    ``pose``, ``landing`` (λ_s), ``trials_without_success`` (trials whose reservoir
+    of the pose has no grasp with p > 0), ``num_trials``, ``cannot_leave``,
+    ``trapped_trials`` (trials in which the pose is a trap).
+    """
+    pstar = pb.p_star()  # [T, P]
+    out = []
+    for s in np.flatnonzero(pb.pose_valid):
+        dead = pstar[:, s] <= 0.0
+        stuck = bool(pb.topple[s, s] >= 1.0 - _SUM_TOL)
+        if not dead.any() and not stuck:
+            continue
+        out.append(
+            {
+                "pose": int(s),
+                "landing": float(pb.landing[s]),
+                "trials_without_success": int(dead.sum()),
+                "num_trials": int(pb.num_trials),
+                "cannot_leave": stuck,
+                "trapped_trials": int(dead.sum()) if stuck else 0,
+            }
+        )
+    return out
+
+
+def describe_unlearnable(flags: Sequence[dict[str, Any]]) -> list[str]:
+    """One sentence a pose for :func:`unlearnable_poses`'s list."""
+    lines = []
+    for f in flags:
+        what = []
+        if f["trials_without_success"]:
+            what.append(
+                f"no grasp that can succeed in {f['trials_without_success']} of "
+                f"{f['num_trials']} trial(s)"
+            )
+        if f["cannot_leave"]:
+            what.append("a failed grasp always leaves it where it is")
+        tail = (
+            "; a rollout that lands there is stuck for the rest of its horizon"
+            if f["trapped_trials"]
+            else ""
+        )
+        lines.append(
+            f"pose {f['pose']} (landing probability {f['landing']:.3f}): "
+            + " and ".join(what)
+            + tail
+        )
+    return lines
 
 
 def _validate(pb: Problem, path: str | os.PathLike | None) -> None:
