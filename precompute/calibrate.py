@@ -117,4 +117,5 @@ def main(argv=None) -> int:
                 "(correlation with p -> 0), the largest gaps any prior of this form "
                 "can give"
             )
+    print(f"read {root} (no file written; the constant lives in precompute/prior.py)")
     return 0

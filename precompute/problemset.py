@@ -315,6 +315,7 @@ def main_compare(argv: Sequence[str]) -> int:
         names = list(SHIPPED[a.prior])
     result = compare(names, folder, prior=a.prior)
     print(format_comparison(result))
+    print(f"compared {folder} with {set_dir()} (no file written)")
     return 0
 
 
@@ -329,11 +330,16 @@ def main_ship(argv: Sequence[str]) -> int:
         "MANIFEST.json) from the built problem files of every catalogue object "
         "(learned prior) and of the Dex-Net objects (synthetic prior). For the "
         "maintainers: the committed results are made from the shipped set, so "
-        "shipping a new one means running the sweep again.",
+        "shipping a new one means running the sweep again; replacing the "
+        "committed set needs --overwrite.",
     )
-    ap.add_argument("--quiet", action="store_true")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    from ._cli import add_overwrite_arg, guard_out
+
+    add_overwrite_arg(ap, "data/problemset (the shipped set)")
     a = ap.parse_args(list(argv))
     folder = a.problems if a.problems is not None else problems_dir()
+    guard_out(set_dir(), a.overwrite, what="data folder")
     man = pack(folder, progress=not a.quiet)
     total = sum(f["bytes"] for f in man["files"].values())
     print(

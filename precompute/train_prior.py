@@ -15,7 +15,11 @@ Stages (each with a progress bar unless ``--quiet``):
    turned by 180° with probability 1/2 (the same grasp); the weights of the epoch
    with the lowest validation loss are kept;
 5. evaluate on the test objects and write ``weights.npz``, ``metrics.json`` and
-   ``MODEL_CARD.md`` into ``--out`` (default: the package's ``prior_weights``).
+   ``MODEL_CARD.md`` into ``--out`` (default: ``runs/prior`` under the current
+   folder). The shipped weights (``precompute/prior_weights``) are replaced only
+   when told so: ``--out precompute/prior_weights --overwrite``. New weights are
+   used by a build only when named: ``python -m precompute ... --prior-weights
+   runs/prior/weights.npz``.
 
 Everything is determined by the seed: the objects, the labels, the noise, the
 split, the initial weights, the batch order and the turns (JAX on CPU is
@@ -75,6 +79,13 @@ QUICK = TrainConfig(objects=30, grasps=40, poses=2, samples=20, epochs=4, batch=
 
 
 def default_out() -> Path:
+    """Where a run writes unless told ``--out``: ``runs/prior`` under the current
+    folder (a user's own work, never the shipped weights)."""
+    return Path.cwd() / "runs" / "prior"
+
+
+def shipped_out() -> Path:
+    """The folder of the shipped weights (``--out`` there needs ``--overwrite``)."""
     return Path(__file__).resolve().parent / "prior_weights"
 
 
@@ -450,7 +461,10 @@ def _parser() -> argparse.ArgumentParser:
         description="Data and weights of the learned prior: generate the training "
         "objects, label them with the evaluation problems' physics, train the "
         "network and write weights.npz, metrics.json, MODEL_CARD.md and "
-        "reliability_test.png (default folder: precompute/prior_weights).",
+        "reliability_test.png into --out (default: runs/prior under the current "
+        "folder). The shipped weights are used by the builds until others are "
+        "named with --prior-weights PATH; replacing them needs "
+        "--out precompute/prior_weights --overwrite.",
     )
     p.add_argument("--quick", action="store_true", help="a run of about a minute")
     for name, kind, help_ in [
@@ -470,7 +484,18 @@ def _parser() -> argparse.ArgumentParser:
             help=f"{help_} (default {getattr(d, name)}; --quick: "
             f"{getattr(QUICK, name)})",
         )
-    p.add_argument("--out", type=Path, default=None, help="output folder")
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="output folder (default: runs/prior under the current folder)",
+    )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="allow --out to be a folder of the repository's committed files (e.g. "
+        "precompute/prior_weights, the shipped weights), replacing them",
+    )
     p.add_argument("--jobs", type=int, default=None, help="labelling processes")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     return p
@@ -569,6 +594,7 @@ def main(argv=None) -> int:
         raise PrecomputeError(f"--jobs must be at least 1, got {a.jobs}")
     jobs = a.jobs if a.jobs is not None else (os.cpu_count() or 1)
     out = a.out if a.out is not None else default_out()
+    _guard(out, a.overwrite)
     r = run(cfg, out, jobs, progress=not a.quiet)
     m = r["metrics"]["test"]
     print(
@@ -577,4 +603,25 @@ def main(argv=None) -> int:
         f"-> {r['history']['val_loss_best']:.4f}); {r['timings_s']['total']:.0f} s "
         f"-> {out}"
     )
+    print(f"wrote {out / 'weights.npz'}, metrics.json, MODEL_CARD.md")
+    if Path(out).resolve() != shipped_out().resolve():
+        print(
+            "builds use these weights only when named: python -m precompute ... "
+            f"--prior-weights {out / 'weights.npz'}"
+        )
     return 0
+
+
+def _guard(out: Path, overwrite: bool) -> None:
+    """Refuse to replace the shipped weights (or any committed file) unless
+    ``overwrite``."""
+    from ._cli import guard_out
+
+    shipped = shipped_out()
+    if not overwrite and Path(out).resolve() == shipped.resolve():
+        if (shipped / "weights.npz").exists():
+            raise PrecomputeError(
+                f"{out} holds the shipped weights of the learned prior: pass "
+                "--overwrite to replace them, or leave --out out (default runs/prior)"
+            )
+    guard_out(out, overwrite)
