@@ -7,7 +7,7 @@ A mesh whose longest side is outside [5 mm, 1 m] after conversion is refused, wi
 a hint when another unit would fit (the usual mistake is a millimetre mesh read as
 metres).
 
-Size (``fit``, SPEC §6). ``"none"`` keeps the mesh at its file size: the Dex-Net
+Size (``fit``). ``"none"`` keeps the mesh at its file size: the Dex-Net
 meshes are the physical size they were printed at (70-120 mm). ``"egad"`` applies
 EGAD!'s own rule for a gripper of opening w = :data:`precompute.grasps.OPENING`
 (dougsm/egad, ``scripts/prepare_meshes.py``; the paper, quoted in dougsm/egad#9:
@@ -47,7 +47,18 @@ import numpy as np
 
 from .errors import PrecomputeError
 
-__all__ = ["UNITS", "FITS", "LoadedMesh", "load_mesh", "file_sha256", "egad_factor"]
+__all__ = [
+    "UNITS",
+    "FITS",
+    "TOUCH",
+    "LoadedMesh",
+    "load_mesh",
+    "read_mesh_file",
+    "file_sha256",
+    "source_sha256",
+    "check_mesh_kind",
+    "egad_factor",
+]
 
 #: Length units a mesh file may be in, with their size in metres.
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
@@ -96,6 +107,31 @@ def file_sha256(path: str | Path) -> str:
     return h.hexdigest()
 
 
+def source_sha256(path: str | Path) -> str:
+    """What :attr:`LoadedMesh.sha256` is for ``path`` without loading it: the
+    file's SHA-256, or for a URDF that of its bytes and of the mesh files it
+    names."""
+    if Path(path).suffix.lower() == ".urdf":
+        import hashlib as _h
+
+        from .urdf import urdf_geometry
+
+        h = _h.sha256(Path(path).read_bytes())
+        for g in urdf_geometry(path):
+            if g["kind"] == "mesh":
+                h.update(bytes.fromhex(file_sha256(g["file"])))
+        return h.hexdigest()
+    return file_sha256(path)
+
+
+def check_mesh_kind(path: str | Path) -> None:
+    """Refuse (naming what to do) a file that is no mesh precompute reads."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix != ".urdf" and suffix not in _MESH_SUFFIXES:
+        raise _refuse(path, _wrong_kind(suffix))
+
+
 def _refuse(path: Path, defect: str) -> PrecomputeError:
     return PrecomputeError(f"{path}: {defect}")
 
@@ -111,9 +147,12 @@ def egad_factor(extents, width: float) -> float:
     return float(factor)
 
 
-def load_mesh(path: str | Path, units: str = "m", fit: str = "none") -> LoadedMesh:
-    """Load, convert to metres, repair, size (``fit``) and check the mesh at
-    ``path``.
+def load_mesh(
+    path: str | Path, units: str = "m", fit: str = "none", scale: float = 1.0
+) -> LoadedMesh:
+    """Load, convert to metres (``units``, then the factor ``scale``), repair, size
+    (``fit``) and check the mesh at ``path``: a mesh file, or a URDF whose
+    collision mesh (else visual mesh) is read at the URDF's ``scale``.
 
     Raises :class:`PrecomputeError` naming the file and the defect.
     """
@@ -128,20 +167,100 @@ def load_mesh(path: str | Path, units: str = "m", fit: str = "none") -> LoadedMe
         raise PrecomputeError(
             f"unknown size rule '{fit}' for {path} (choose one of {', '.join(FITS)})"
         )
+    if not (np.isfinite(scale) and scale > 0):
+        raise PrecomputeError(f"--scale must be a positive number, got {scale}")
     if not path.exists():
         raise _refuse(path, "no such file")
     if not path.is_file():
         raise _refuse(path, "not a file")
+    suffix = path.suffix.lower()
+    if suffix == ".urdf":
+        from .urdf import read_urdf
+
+        vertices, faces, sha = read_urdf(path)
+    else:
+        vertices, faces, sha = read_mesh_file(path)
+
+    scale = UNITS[units] * float(scale)
+    vertices = vertices * scale
+    repairs: list[str] = []
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    raw = mesh.copy()
+
+    # 1. merge vertices, drop degenerate and duplicate faces
+    n_faces = len(mesh.faces)
+    _clean(mesh)
+    if len(mesh.faces) == 0:
+        raise _refuse(path, "degenerate: every face has zero area")
+    if len(mesh.faces) < n_faces:
+        n_bad = n_faces - len(mesh.faces)
+        repairs.append(f"dropped {_count(n_bad, 'degenerate or duplicate face')}")
+    extents = np.ptp(mesh.vertices, axis=0)
+    centred = mesh.vertices - mesh.vertices.mean(axis=0)
+    sv = np.linalg.svd(centred, compute_uv=False)
+    if len(sv) < 3 or sv[2] <= 1e-9 * max(sv[0], 1e-300):
+        raise _refuse(path, "degenerate: all points lie on a plane or a line")
+    _check_size(path, mesh, units)
+    open_before = _count_open_edges(mesh)
+
+    # 2-5. pieces of the merged mesh; when one cannot be closed, the file's own
+    # pieces (faces joined by the file's vertex indices, each merged on its own):
+    # closed solids that touch, which merging all vertices at once glues into
+    # shapes that are not closed
+    first = list(repairs)
+    try:
+        result = _assemble(path, mesh.split(only_watertight=False), extents, repairs)
+    except _Holes as e:
+        own = _file_pieces(raw)
+        if len(own) < 2:
+            raise PrecomputeError(str(e)) from None
+        repairs = first + [
+            f"read the file's {len(own)} pieces apart (merged at their shared "
+            "points they are not closed)"
+        ]
+        try:
+            # closed pieces of the file's own: small ones (a mug's handle) are
+            # parts of the object, not sheets
+            result = _assemble(path, own, extents, repairs, min_volume=1e-4)
+        except _Holes:
+            raise PrecomputeError(str(e)) from None
+        open_before = 0
+    if open_before and not any("holes" in r or "rebuilt" in r for r in repairs):
+        repairs.append(f"closed holes ({open_before} open edges)")
+    _check_size(path, result, units)
+    vertices = np.asarray(result.vertices, np.float64)
+    if fit == "egad":
+        from .grasps import OPENING
+
+        factor = egad_factor(_obb_extents(result), OPENING)
+        vertices = vertices * factor
+        scale *= factor
+    return LoadedMesh(
+        path=path,
+        vertices=np.ascontiguousarray(vertices, np.float64),
+        faces=np.ascontiguousarray(result.faces, np.int64),
+        scale=scale,
+        units=units,
+        fit=fit,
+        repairs=tuple(repairs),
+        sha256=sha,
+    )
+
+
+def read_mesh_file(path: Path) -> tuple[np.ndarray, np.ndarray, str]:
+    """(vertices [V, 3] in file units, faces [F, 3], SHA-256 of the bytes) of a mesh
+    file, or a refusal naming the file, the defect and what to do."""
+    import trimesh
+
+    path = Path(path)
+    if not path.exists():
+        raise _refuse(path, "no such file")
     data = path.read_bytes()
     if not data.strip():
         raise _refuse(path, "empty file")
     suffix = path.suffix.lower()
     if suffix not in _MESH_SUFFIXES:
-        raise _refuse(
-            path,
-            f"not a mesh file (suffix '{suffix}'; expected one of "
-            f"{', '.join(sorted(_MESH_SUFFIXES))})",
-        )
+        raise _refuse(path, _wrong_kind(suffix))
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -161,49 +280,85 @@ def load_mesh(path: str | Path, units: str = "m", fit: str = "none") -> LoadedMe
         raise _refuse(path, "vertices with NaN or infinite coordinates")
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise _refuse(path, "faces refer to vertices that do not exist")
+    return vertices, faces, hashlib.sha256(data).hexdigest()
 
-    scale = UNITS[units]
-    vertices = vertices * scale
-    repairs: list[str] = []
-    mesh = trimesh.Trimesh(vertices, faces, process=False)
 
-    # 1. merge vertices, drop degenerate and duplicate faces
-    n_faces = len(mesh.faces)
+def _wrong_kind(suffix: str) -> str:
+    """What to do with a file that is not a mesh precompute reads."""
+    known = ", ".join(sorted(_MESH_SUFFIXES | {".urdf"}))
+    if suffix == ".npz":
+        return (
+            "a problem file, not a mesh: --mesh builds one from a mesh; use the "
+            "problem file with the commands that read problems (e.g. python -m "
+            "legs_jax.online simulate --object PATH, or python -m precompute "
+            "report --problems FOLDER)"
+        )
+    if suffix in (".sdf", ".xml", ".mjcf"):
+        return (
+            f"a scene or model description ('{suffix}'), not supported: give the "
+            f"mesh file it names, or a URDF (one of {known})"
+        )
+    if suffix in (".dae", ".fbx", ".blend", ".3ds", ".step", ".stp", ".iges"):
+        return (
+            f"a '{suffix}' file is not read: export it as .obj, .stl or .ply (e.g. "
+            f"with Blender or MeshLab) and give that to --mesh (read: {known})"
+        )
+    return f"not a mesh file (suffix '{suffix}'; expected one of {known})"
+
+
+def _clean(mesh) -> None:
+    """Merge duplicate vertices, drop degenerate and duplicate faces (in place)."""
     mesh.merge_vertices()
     keep = mesh.nondegenerate_faces(height=1e-12)
     mesh.update_faces(keep)
     mesh.update_faces(mesh.unique_faces())
     mesh.remove_unreferenced_vertices()
-    if len(mesh.faces) == 0:
-        raise _refuse(path, "degenerate: every face has zero area")
-    if len(mesh.faces) < n_faces:
-        n_bad = n_faces - len(mesh.faces)
-        repairs.append(f"dropped {_count(n_bad, 'degenerate or duplicate face')}")
-    extents = np.ptp(mesh.vertices, axis=0)
-    centred = mesh.vertices - mesh.vertices.mean(axis=0)
-    sv = np.linalg.svd(centred, compute_uv=False)
-    if len(sv) < 3 or sv[2] <= 1e-9 * max(sv[0], 1e-300):
-        raise _refuse(path, "degenerate: all points lie on a plane or a line")
-    _check_size(path, mesh, units)
-    open_before = _count_open_edges(mesh)
 
-    # 2. pieces; stray ones dropped
-    pieces = mesh.split(only_watertight=False)
+
+def _file_pieces(raw) -> list:
+    """The pieces of the file as it indexes them (faces sharing a vertex index),
+    each cleaned on its own; [] when the file indexes every triangle apart (then
+    the merged pieces are all there is)."""
+    import trimesh
+
+    labels = trimesh.graph.connected_component_labels(
+        raw.face_adjacency, node_count=len(raw.faces)
+    )
+    n = int(labels.max()) + 1 if len(labels) else 0
+    if n < 2 or n > max(2, len(raw.faces) // 4):
+        return []
+    out = []
+    for k in range(n):
+        piece = raw.submesh([np.flatnonzero(labels == k)], append=True)
+        _clean(piece)
+        if len(piece.faces):
+            out.append(piece)
+    return out
+
+
+class _Holes(PrecomputeError):
+    """A piece whose holes cannot be closed (tried again with the file's pieces)."""
+
+
+def _assemble(path: Path, pieces, extents, repairs: list[str], min_volume=0.01):
+    """One rigid solid from the pieces of a mesh: stray ones dropped, each closed
+    and turned outwards, those under ``min_volume`` of the largest one's volume
+    dropped, the rest joined (manifold3d union); pieces that stay apart after the
+    union are one body when they touch (:data:`TOUCH`), else refused."""
     total_area = float(sum(p.area for p in pieces))
     kept = [p for p in pieces if p.area >= _STRAY_AREA * total_area]
     if len(kept) < len(pieces):
         repairs.append(f"dropped {_count(len(pieces) - len(kept), 'stray piece')}")
 
     # 3-4. orientation and holes, per piece
-    solid = []
-    for piece in kept:
-        piece = _close_piece(path, piece, repairs)
-        solid.append(piece)
+    solid = [_close_piece(path, piece, repairs) for piece in kept]
     vol = np.array([abs(p.volume) for p in solid])
     if vol.max() <= 1e-9 * float(np.prod(np.maximum(extents, 1e-12))):
         raise _refuse(path, "no volume (an open or flat surface, not a solid)")
     # pieces without volume (sheets, or cavities of negligible size) are stray too
-    substantial = [p for p, v in zip(solid, vol, strict=True) if v >= 0.01 * vol.max()]
+    substantial = [
+        p for p, v in zip(solid, vol, strict=True) if v >= min_volume * vol.max()
+    ]
     if len(substantial) < len(solid):
         n_flat = len(solid) - len(substantial)
         repairs.append(f"dropped {_count(n_flat, 'piece')} without volume")
@@ -211,37 +366,114 @@ def load_mesh(path: str | Path, units: str = "m", fit: str = "none") -> LoadedMe
     # 5. one rigid body
     if len(substantial) > 1:
         joined = _union(path, substantial)
-        if len(joined.split(only_watertight=False)) > 1:
-            raise _refuse(
-                path,
-                f"{len(substantial)} separate bodies (one rigid object is expected)",
+        bodies = joined.split(only_watertight=False)
+        if len(bodies) > 1:
+            # the union of pieces that only touch can leave slivers of zero area
+            # where they touch: dropped
+            import trimesh
+
+            _clean(joined)
+            bodies = [
+                b
+                for b in joined.split(only_watertight=False)
+                if b.volume > 1e-9 * abs(joined.volume)
+            ]
+            joined = trimesh.util.concatenate(bodies)
+        if len(bodies) > 1:
+            _touching_or_refuse(path, bodies, extents)
+            repairs.append(
+                f"joined {len(substantial)} pieces into one solid of "
+                f"{len(bodies)} parts that touch (held as one rigid body)"
             )
-        repairs.append(f"joined {len(substantial)} overlapping pieces into one solid")
+        else:
+            repairs.append(
+                f"joined {len(substantial)} overlapping pieces into one solid"
+            )
         result = joined
     else:
         result = substantial[0]
     if not result.is_watertight or result.volume <= 0:
         raise _refuse(path, "no volume after repair (not a closed solid)")
-    if open_before and not any("holes" in r or "rebuilt" in r for r in repairs):
-        repairs.append(f"closed holes ({open_before} open edges)")
-    _check_size(path, result, units)
-    vertices = np.asarray(result.vertices, np.float64)
-    if fit == "egad":
-        from .grasps import OPENING
+    return result
 
-        factor = egad_factor(_obb_extents(result), OPENING)
-        vertices = vertices * factor
-        scale *= factor
-    return LoadedMesh(
-        path=path,
-        vertices=np.ascontiguousarray(vertices, np.float64),
-        faces=np.ascontiguousarray(result.faces, np.int64),
-        scale=scale,
-        units=units,
-        fit=fit,
-        repairs=tuple(repairs),
-        sha256=hashlib.sha256(data).hexdigest(),
+
+#: Parts of a mesh whose surfaces come within this fraction of the diagonal of the
+#: mesh's bounding box of each other touch: they are one rigid body, as a physics
+#: simulator holds the convex pieces of a collision mesh (V-HACD's, for one).
+TOUCH = 0.005
+
+
+def _touching_or_refuse(path: Path, bodies, extents) -> None:
+    """Nothing when the ``bodies`` (closed, disjoint) are linked by touches
+    (surfaces within ``TOUCH`` × diagonal, measured between their vertices and,
+    failing that, between points spread over their faces at that spacing); else a
+    refusal naming the gap."""
+    from scipy.spatial import cKDTree
+
+    diag = float(np.linalg.norm(extents))
+    tol = TOUCH * diag
+    n = len(bodies)
+    lo = np.array([b.vertices.min(axis=0) for b in bodies]) - tol
+    hi = np.array([b.vertices.max(axis=0) for b in bodies]) + tol
+    parent = list(range(n))
+
+    def find(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    trees = [cKDTree(b.vertices) for b in bodies]
+    dense: dict[int, tuple] = {}
+    gaps = []
+    for a in range(n):
+        for b in range(a + 1, n):
+            if find(a) == find(b):
+                continue
+            if np.any(lo[a] > hi[b]) or np.any(lo[b] > hi[a]):
+                continue
+            d = float(trees[b].query(bodies[a].vertices, k=1)[0].min())
+            if d > tol:
+                for i in (a, b):
+                    if i not in dense:
+                        dense[i] = _surface_points(bodies[i], tol)
+                pa, tb = dense[a]
+                d = min(d, float(tb.query(pa, k=1)[0].min()))
+                pb_, ta = dense[b]
+                d = min(d, float(ta.query(pb_, k=1)[0].min()))
+            if d <= tol:
+                parent[find(a)] = find(b)
+            else:
+                gaps.append(d)
+    groups = len({find(i) for i in range(n)})
+    if groups > 1:
+        # the nearest parts of different groups (between their vertices)
+        gaps += [
+            float(trees[b].query(bodies[a].vertices, k=1)[0].min())
+            for a in range(n)
+            for b in range(a + 1, n)
+            if find(a) != find(b)
+        ]
+        near = f"; the nearest are {min(gaps) * 1000:.3g} mm apart"
+        raise _refuse(
+            path,
+            f"{groups} separate bodies (parts further apart than "
+            f"{TOUCH * 100:g} % of the bounding-box diagonal, {tol * 1000:.3g} mm"
+            f"{near}; one rigid object is expected): join them in a mesh editor or "
+            "give each body its own file",
+        )
+
+
+def _surface_points(body, spacing: float):
+    """(points, their KD-tree): the vertices of ``body`` with its faces cut until
+    no edge is longer than ``spacing``."""
+    import trimesh
+    from scipy.spatial import cKDTree
+
+    v, _ = trimesh.remesh.subdivide_to_size(
+        body.vertices, body.faces, max_edge=spacing, max_iter=12
     )
+    return v, cKDTree(v)
 
 
 def _obb_extents(mesh) -> np.ndarray:
@@ -268,10 +500,10 @@ def _close_piece(path: Path, piece, repairs: list[str]):
             rebuilt = _manifold_rebuild(piece)
             if rebuilt is None:
                 open_edges = _count_open_edges(piece)
-                raise _refuse(
-                    path,
-                    f"holes that cannot be closed ({open_edges} open edges, "
-                    f"{before} faces at the borders)",
+                raise _Holes(
+                    f"{path}: holes that cannot be closed ({open_edges} open edges, "
+                    f"{before} faces at the borders): close them in a mesh editor "
+                    "(e.g. MeshLab, Blender) or export the object as a closed solid"
                 )
             piece = rebuilt
             repairs.append("rebuilt a leaking piece as a closed solid (manifold3d)")
