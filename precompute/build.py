@@ -1,4 +1,4 @@
-"""Mesh -> problem file (SPEC §1, §6) and the cache of built problems.
+"""Mesh -> problem file and the cache of built problems.
 
 Pipeline of one object: load and repair the mesh (:mod:`.mesh`), stable poses and
 landing probabilities, topple matrix (:mod:`.poses`), then per pose: an Embree scene
@@ -78,6 +78,9 @@ class BuildParams:
     landing_threshold: float = _poses.LANDING_THRESHOLD
     # "learned" or "synthetic"; the default is learned once weights are shipped
     prior: str = dataclasses.field(default_factory=_learned.default_prior)
+    # weights of the learned prior other than the shipped ones (None: shipped);
+    # in the hash through the prior's constants (their SHA-256), not as a path
+    prior_weights: str | None = None
 
     def check(self) -> BuildParams:
         if self.prior not in _learned.PRIORS:
@@ -85,8 +88,14 @@ class BuildParams:
                 f"unknown prior '{self.prior}' (choose one of "
                 f"{', '.join(_learned.PRIORS)})"
             )
+        if self.prior_weights is not None and self.prior != "learned":
+            raise PrecomputeError(
+                "--prior-weights names weights of the learned prior: it cannot go "
+                f"with --prior {self.prior}"
+            )
         if self.prior == "learned":
-            _learned.prior_params()  # a clear error when the weights are missing
+            # a clear error when the weights are missing
+            _learned.prior_params(self.prior_weights)
         if self.trials < 1:
             raise PrecomputeError(f"--trials must be at least 1, got {self.trials}")
         if self.grasps < 1:
@@ -116,11 +125,15 @@ def build_hash(
     params: BuildParams,
     fit: str = "none",
     prior: dict | None = None,
+    scale: float = 1.0,
 ) -> str:
     """The hash of everything a build depends on; ``prior``: the prior's constants
-    (default: the current ones of the prior ``params.prior``)."""
+    (default: the current ones of the prior ``params.prior``); ``scale``: the
+    factor after the units (in the hash only when not 1, so that the hashes of
+    builds without it stay as they were)."""
     hashed = dataclasses.asdict(params)
     del hashed["prior"]  # in "prior" below (synthetic builds keep their old hash)
+    del hashed["prior_weights"]  # its SHA-256 is in "prior" below
     blob = json.dumps(
         {
             "mesh_sha256": mesh_sha256,
@@ -132,6 +145,7 @@ def build_hash(
             "prior": prior if prior is not None else prior_params(params),
             "tilt": [_poses.TILT_SIGMA_DEG, _poses.TILT_ANGLES, _poses.TILT_AZIMUTHS],
             "code_version": CODE_VERSION,
+            **({"scale": float(scale)} if float(scale) != 1.0 else {}),
         },
         sort_keys=True,
     )
@@ -141,7 +155,7 @@ def build_hash(
 def prior_params(params: BuildParams) -> dict:
     """The constants of the chosen prior (meta and build hash)."""
     if params.prior == "learned":
-        return _learned.prior_params()
+        return _learned.prior_params(params.prior_weights)
     return _prior.prior_params()
 
 
@@ -158,18 +172,22 @@ def build_problem(
     fit: str = "none",
     set_name: str = "custom",
     params: BuildParams | None = None,
+    scale: float = 1.0,
+    problem_file: str | Path | None = None,
     on_poses: Callable[[int], None] | None = None,
     on_pose_done: Callable[[], None] | None = None,
 ):
-    """Build the :class:`legs_jax.core.problem.Problem` of one mesh.
+    """Build the :class:`legs_jax.core.problem.Problem` of one mesh (``scale``:
+    the factor after ``units``; ``problem_file``: where the problem will be saved,
+    so that a mesh of the user's own is recorded relative to it).
 
     ``on_poses(P)`` is called once the number of poses is known and
     ``on_pose_done()`` after each pose (progress bars).
     """
-    from legs_jax.core.problem import Problem
+    from legs_jax.core.problem import Problem, unlearnable_poses
 
     params = (params or BuildParams()).check()
-    mesh = load_mesh(mesh_path, units, fit)
+    mesh = load_mesh(mesh_path, units, fit, scale)
     com = mesh.center_mass
     try:
         hull = _poses.hull_model(mesh.vertices, mesh.faces, com)
@@ -229,6 +247,7 @@ def build_problem(
                 caster,
                 res,
                 [_rng(params, name, s, t, STREAM_DEPTH) for t in range(T)],
+                params.prior_weights,
             )
         offset = 0
         for t, r in enumerate(res):
@@ -264,7 +283,7 @@ def build_problem(
     meta = {
         "name": name,
         "set": set_name,
-        "mesh_file": _display_path(mesh.path),
+        **_mesh_meta(mesh, set_name, scale, problem_file),
         "mesh_sha256": mesh.sha256,
         "units": units,
         "mesh_scale": mesh.scale,
@@ -287,7 +306,7 @@ def build_problem(
         "dropped_landing_mass": round(sp.dropped_mass, 6),
         "poses": pose_info,
         "code_version": CODE_VERSION,
-        "build_hash": build_hash(mesh.sha256, units, name, params, fit),
+        "build_hash": build_hash(mesh.sha256, units, name, params, fit, scale=scale),
     }
     problem = Problem(
         name=name,
@@ -304,7 +323,10 @@ def build_problem(
         pose_valid=np.ones(P, bool),
         meta=meta,
     )
-    return problem.validate()
+    problem = problem.validate()
+    # the poses no method can learn in: recorded, and said by the build
+    flags = unlearnable_poses(problem)
+    return dataclasses.replace(problem, meta={**meta, "unlearnable": flags})
 
 
 def synthetic_prior(
@@ -330,7 +352,12 @@ def _prior_meta(params: BuildParams) -> dict:
             "learned GQ-CNN-style network (weights sha256 "
             f"{constants['weights_sha256'][:12]})"
         )
-        return {"prior_kind": "learned", "prior": constants, "prior_label": label}
+        return {
+            "prior_kind": "learned",
+            "prior": constants,
+            "prior_label": label,
+            "prior_weights": _learned.weights_meta(params.prior_weights),
+        }
     # a synthetic build's meta is as it was before the learned prior existed (no
     # prior_kind: readers take its absence as synthetic), so its files stay
     # byte-identical and results pinned to them stay current
@@ -342,6 +369,7 @@ def _meta_params(params: BuildParams) -> dict:
     """The build parameters as meta records them (the prior field only for a
     learned build, for the same reason as :func:`_prior_meta`)."""
     d = dataclasses.asdict(params)
+    del d["prior_weights"]  # in meta["prior_weights"] (learned builds)
     if params.prior != "learned":
         del d["prior"]
     return d
@@ -384,7 +412,7 @@ def _learned_prior_of(info, params: BuildParams, pb) -> np.ndarray | None:
             for t in range(T)
         ]
         rngs = [_rng(params, info.name, s, t, STREAM_DEPTH) for t in range(T)]
-        q[:, s] = _learned.score_reservoirs(caster, slots, rngs)
+        q[:, s] = _learned.score_reservoirs(caster, slots, rngs, params.prior_weights)
     return q
 
 
@@ -419,6 +447,7 @@ def reprior(path: Path, info, params: BuildParams) -> bool:
     new_meta["params"] = _meta_params(params)
     if params.prior != "learned":
         new_meta.pop("prior_kind", None)
+        new_meta.pop("prior_weights", None)
     new_meta["build_hash"] = build_hash(
         mesh_sha, info.units, info.name, params, info.fit
     )
@@ -431,6 +460,52 @@ def _rotate(points: np.ndarray, rot: np.ndarray) -> np.ndarray:
     processor (a BLAS product picks its kernel, and its rounding, by CPU)."""
     x, y, z = points[:, 0:1], points[:, 1:2], points[:, 2:3]
     return x * rot[:, 0] + y * rot[:, 1] + z * rot[:, 2]
+
+
+def _mesh_meta(mesh, set_name: str, scale: float, problem_file) -> dict:
+    """Where the mesh of a problem is (``mesh_file``) and how it was read. A
+    catalogue object, or a mesh of the repository's data: its path in the
+    repository. A mesh of the user's own (set "custom"): its path
+    relative to the problem file's folder (``mesh_file``: later commands find it
+    from the problem file, wherever both are moved together), its absolute path
+    (``mesh_file_abs``), the factor after the units (``scale``) and, for a URDF,
+    the mesh files and scales it names (``urdf``)."""
+    absolute = Path(mesh.path).resolve()
+    if set_name != "custom" or _catalog.data_dir().resolve() in absolute.parents:
+        # a catalogue object, or a mesh of the repository's data: as before
+        return {"mesh_file": _display_path(mesh.path)}
+    if problem_file is not None:
+        folder = Path(problem_file).resolve().parent
+        rel = os.path.relpath(absolute, folder)
+    else:
+        rel = absolute.name
+    out = {
+        "mesh_file": rel,
+        "mesh_file_abs": str(absolute),
+        "mesh_name": absolute.name,
+        "scale": float(scale),
+    }
+    if absolute.suffix.lower() == ".urdf":
+        from .urdf import urdf_geometry
+
+        out["urdf"] = [
+            {
+                "kind": g["kind"],
+                "source": g["source"],
+                **(
+                    {
+                        "file": os.path.relpath(
+                            Path(g["file"]).resolve(), absolute.parent
+                        ),
+                        "scale": [float(x) for x in g["scale"]],
+                    }
+                    if g["kind"] == "mesh"
+                    else {"size": [float(x) for x in g["size"]]}
+                ),
+            }
+            for g in urdf_geometry(absolute)
+        ]
+    return out
 
 
 def _display_path(path: Path) -> str:

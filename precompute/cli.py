@@ -11,7 +11,7 @@ from ._cli import add_mesh_size_args
 from .errors import PrecomputeError
 
 BUILD_HELP = """\
-Build problem files (SPEC §1) from meshes: stable poses and landing probabilities,
+Build problem files from meshes: stable poses and landing probabilities,
 topple matrix, T reservoirs of K top-down parallel-jaw grasps per pose, the
 ground-truth success probability of every grasp (Embree ray casting under
 perturbation) and the prior q: --prior learned (a small GQ-CNN-style network that
@@ -70,9 +70,20 @@ def _build_parser() -> argparse.ArgumentParser:
         "--mesh",
         type=Path,
         metavar="PATH",
-        help="your own mesh (.obj/.stl/.ply/.off); needs --units",
+        help="your own mesh (.obj/.stl/.ply/.off/.glb/.gltf; needs --units) or a "
+        "URDF asset (.urdf: its collision mesh, else its visual mesh, at the "
+        "URDF's scale; --units defaults to m). Pieces that touch or overlap are "
+        "joined into one rigid body; pieces apart are refused",
     )
     add_mesh_size_args(p, "--mesh", " (catalogue meshes know theirs)")
+    p.add_argument(
+        "--scale",
+        type=float,
+        default=1.0,
+        metavar="FACTOR",
+        help="multiply the mesh by FACTOR after --units (and after a URDF's own "
+        "scale), e.g. 0.5 for half size; --mesh only (default 1)",
+    )
     p.add_argument(
         "--out",
         type=Path,
@@ -100,6 +111,16 @@ def _build_parser() -> argparse.ArgumentParser:
         "prior-<kind> subfolder of the problems folder",
     )
     p.add_argument(
+        "--prior-weights",
+        type=Path,
+        metavar="PATH",
+        help="weights of the learned prior other than the shipped ones (e.g. "
+        "runs/prior/weights.npz from train-prior); implies --prior learned. Each "
+        "problem file records the weights that made its q (path and SHA-256) and "
+        "is rebuilt when they change; catalogue objects built with them go to the "
+        "weights-<sha> subfolder of the problems folder",
+    )
+    p.add_argument(
         "--jobs", type=int, default=None, help="worker processes (default: CPU cores)"
     )
     p.add_argument("--force", action="store_true", help="rebuild up-to-date files too")
@@ -115,6 +136,7 @@ def _build(argv) -> int:
         BuildParams,
         expected_hash,
         is_up_to_date,
+        prior_params,
         problem_path,
         problems_dir,
         reprior,
@@ -124,6 +146,9 @@ def _build(argv) -> int:
     from .runner import Task, run_tasks
 
     a = _build_parser().parse_args(argv)
+    weights = str(a.prior_weights) if a.prior_weights is not None else None
+    if weights is not None and a.prior is None:
+        a.prior = "learned"
     prior = a.prior if a.prior is not None else default_prior()
     if a.prior is None and prior == "synthetic":
         print(
@@ -131,31 +156,56 @@ def _build(argv) -> int:
             "(python -m precompute train-prior makes them); using --prior synthetic"
         )
     params = BuildParams(
-        trials=a.trials, grasps=a.grasps, samples=a.samples, seed=a.seed, prior=prior
+        trials=a.trials,
+        grasps=a.grasps,
+        samples=a.samples,
+        seed=a.seed,
+        prior=prior,
+        prior_weights=weights,
     ).check()
+    if weights is not None:
+        sha = prior_params(params)["weights_sha256"]
+        print(f"prior: learned, weights {weights} (sha256 {sha[:12]})")
     if a.jobs is not None and a.jobs < 1:
         raise PrecomputeError(f"--jobs must be at least 1, got {a.jobs}")
     if a.mesh is not None:
+        from .mesh import check_mesh_kind
+
+        check_mesh_kind(a.mesh)
+        if a.units is None and a.mesh.suffix.lower() == ".urdf":
+            a.units = "m"  # a URDF's lengths are metres
         if a.units is None:
             raise PrecomputeError(
                 f"--mesh {a.mesh} needs --units (one of {', '.join(UNITS)})"
             )
+        if not (a.scale > 0 and a.scale < float("inf")):
+            raise PrecomputeError(f"--scale must be a positive number, got {a.scale}")
         out = a.out if a.out is not None else Path.cwd() / "problems"
         name = a.mesh.stem
         dest = Path(out) / "custom" / f"{name}.npz"
-        tasks = [Task(a.mesh, a.units, name, "custom", dest, a.fit)]
+        tasks = [Task(a.mesh, a.units, name, "custom", dest, a.fit, a.scale)]
         skipped = []
         if not a.force and a.mesh.is_file():
             from .build import build_hash
-            from .mesh import file_sha256
+            from .mesh import source_sha256
 
-            want = build_hash(file_sha256(a.mesh), a.units, name, params, a.fit)
+            want = build_hash(
+                source_sha256(a.mesh), a.units, name, params, a.fit, scale=a.scale
+            )
             if is_up_to_date(dest, want):
                 tasks, skipped = [], [dest]
     else:
         out = a.out if a.out is not None else problems_dir(prior=prior)
+        if a.out is None and weights is not None:
+            # apart from the problems of the shipped weights, which they would
+            # otherwise replace
+            out = out / f"weights-{prior_params(params)['weights_sha256'][:12]}"
         if a.units is not None:
             raise PrecomputeError("--units applies to --mesh only")
+        if a.scale != 1.0:
+            raise PrecomputeError(
+                "--scale applies to --mesh only (catalogue meshes carry their size)"
+            )
         if a.fit != "none":
             raise PrecomputeError(
                 "--fit applies to --mesh only (catalogue sets carry their own rule)"
@@ -190,6 +240,7 @@ def _build(argv) -> int:
     if not tasks:
         if a.mesh is not None:
             print(f"problem file: {skipped[0]}")
+            _warn_unlearnable([(a.mesh.stem, _recorded_flags(skipped[0]))])
         return 0
     jobs = a.jobs if a.jobs is not None else (os.cpu_count() or 1)
     start = time.perf_counter()
@@ -202,7 +253,33 @@ def _build(argv) -> int:
     )
     if a.mesh is not None:
         print(f"problem file: {tasks[0].dest}")
+    _warn_unlearnable([(t.name, r[3]) for t, r in zip(tasks, results, strict=True)])
     return 0
+
+
+def _recorded_flags(path: Path) -> list:
+    """The unlearnable poses a problem file records (worked out from its arrays
+    for a file built before they were recorded)."""
+    from legs_jax.core.problem import load, unlearnable_poses
+
+    from .build import read_meta
+
+    meta = read_meta(path) or {}
+    if "unlearnable" in meta:
+        return list(meta["unlearnable"] or [])
+    try:
+        return unlearnable_poses(load(path))
+    except Exception:  # noqa: BLE001 - an unreadable file is rebuilt elsewhere
+        return []
+
+
+def _warn_unlearnable(flagged) -> None:
+    """One line per pose that cannot be learned (``flagged``: [(name, flags)])."""
+    from legs_jax.core.problem import describe_unlearnable
+
+    for name, flags in flagged:
+        for line in describe_unlearnable(flags):
+            print(f"warning: {name}: {line}")
 
 
 def main(argv=None) -> int:

@@ -26,6 +26,7 @@ class Task:
     set_name: str
     dest: Path
     fit: str = "none"  # size rule (precompute.mesh.FITS)
+    scale: float = 1.0  # factor applied after the units (--scale)
 
 
 def build_many(infos, *, out: Path, params, jobs: int = 1, progress: bool = True):
@@ -74,7 +75,7 @@ def ensure(
     return paths
 
 
-def _run_one(task: Task, params, messages=None) -> tuple[str, float, int]:
+def _run_one(task: Task, params, messages=None) -> tuple:
     from legs_jax.core.problem import save
 
     from .build import build_problem
@@ -96,11 +97,14 @@ def _run_one(task: Task, params, messages=None) -> tuple[str, float, int]:
         name=task.name,
         set_name=task.set_name,
         params=params,
+        scale=task.scale,
+        problem_file=task.dest,
         on_poses=on_poses,
         on_pose_done=on_pose_done,
     )
     save(problem, task.dest)
-    return task.name, time.perf_counter() - start, problem.num_poses
+    flags = problem.meta.get("unlearnable", [])
+    return task.name, time.perf_counter() - start, problem.num_poses, flags
 
 
 def _worker_init():
@@ -144,13 +148,14 @@ class _Bars:
 
 
 def run_tasks(tasks: list[Task], *, params, jobs: int = 1, progress: bool = True):
-    """Build every task; returns [(name, seconds, poses)] in task order.
+    """Build every task; returns [(name, seconds, poses, unlearnable)] in task
+    order (``unlearnable``: :func:`legs_jax.core.problem.unlearnable_poses`).
 
     A :class:`PrecomputeError` of any task is raised after the other tasks finish
     (their files are kept)."""
     jobs = max(1, min(int(jobs), len(tasks))) if tasks else 1
     bars = _Bars(len(tasks), progress)
-    results: dict[str, tuple[str, float, int]] = {}
+    results: dict[str, tuple] = {}
     errors: list[str] = []
     try:
         if jobs == 1:
