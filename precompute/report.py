@@ -1,7 +1,10 @@
 """``python -m precompute report``: what the built problems look like, per object and
 per set, beside the paper's prior-only rows.
 
-Writes, under ``--out`` (default ``results/precompute``):
+Writes, under ``--out`` (default: ``results/precompute``, the committed report,
+when every catalogue object is built and none is named; otherwise
+``runs/precompute-report`` under the current folder; a folder of committed files
+other than the full report's needs ``--overwrite``):
 
 - ``summary.csv``: one row per object: set, object, poses P, landing probabilities
   λ (largest first, ``;``-separated), valid grasps per pose (mean over trials), the
@@ -9,7 +12,11 @@ Writes, under ``--out`` (default ``results/precompute``):
   λ-weighted p*, the prior's kind (learned or synthetic), the prior–truth
   correlation (Pearson, over all valid grasps of all trials), the prior's ROC AUC
   for p ≥ 0.5, and the prior-only gaps of the Dex-Net row and the K=100 upper bound
-  (SPEC §5, mean over trials; :func:`precompute.analysis.prior_only_gaps`).
+  (mean over trials; :func:`precompute.analysis.prior_only_gaps`), and the poses
+  that cannot be learned (``unlearnable_poses``:
+  :func:`legs_jax.core.problem.unlearnable_poses`, ``;``-separated).
+- ``unlearnable.md`` (when there are any): those poses, one sentence each (also
+  printed).
 - ``sets.csv`` and ``sets.md``: per set, those two gaps (mean ± standard error
   across objects) beside the paper's (Dex-Net set 0.56 / 0.08, EGAD 0.59 / 0.13),
   and whether each lies within ±0.05 of the paper's.
@@ -20,6 +27,10 @@ Writes, under ``--out`` (default ``results/precompute``):
 - ``figures/robustness_<set>.png``: a histogram of the ground-truth robustness of
   every valid grasp (all trials, all poses) per object, log scale (the paper's
   Fig. 3, middle row).
+
+Problems of the user's own meshes (``<problems>/custom/*.npz``, and
+``./problems/custom`` when ``--problems`` is not given) are reported too, as the
+set ``custom`` (``--objects custom`` for those alone).
 
 Each problem records its prior (learned or synthetic, ``meta["prior_kind"]``); the
 object rows and the set table say which, and give its ROC AUC for p ≥ 0.5. The
@@ -42,8 +53,12 @@ from .errors import PrecomputeError
 __all__ = ["main", "object_row", "set_rows"]
 
 GOOD = 0.5  # p at or above this counts as a good grasp
-TOLERANCE = 0.05  # issue / SPEC: prior-only gaps within ±0.05 of the paper's
+TOLERANCE = 0.05  # prior-only gaps within ±0.05 of the paper's
 BEST_DRAWN = 5  # grasps drawn per pose
+#: Default output folder of a report of every catalogue object (the committed one)
+FULL_OUT = Path("results/precompute")
+#: Default output folder of any other report (a user's own work)
+PART_OUT = Path("runs/precompute-report")
 
 
 def _fmt_list(values, digits: int) -> str:
@@ -72,6 +87,8 @@ def roc_auc(score: np.ndarray, positive: np.ndarray) -> float:
 
 def object_row(pb, set_name: str) -> dict:
     """Summary statistics of one problem (a :class:`legs_jax.core.problem.Problem`)."""
+    from legs_jax.core.problem import unlearnable_poses
+
     from .analysis import prior_only_gaps, prior_only_rows
 
     P = int(pb.pose_valid.sum())
@@ -102,6 +119,7 @@ def object_row(pb, set_name: str) -> dict:
         "prior_truth_corr": corr,
         "prior_auc": roc_auc(qv, pv >= GOOD),
         **{f"{m}_gap": float(g[rule].mean()) for m, rule in prior_only_rows().items()},
+        "unlearnable_poses": ";".join(str(f["pose"]) for f in unlearnable_poses(pb)),
     }
 
 
@@ -221,14 +239,49 @@ def _finish(plt, fig, title: str, fontsize: float, path: Path) -> Path:
     return path
 
 
+def _custom_mesh(pb, problem_file: Path):
+    """The mesh of a problem of the user's own, as its build read it (metres),
+    found from what the problem file records; None when it cannot be found."""
+    import trimesh
+
+    from .mesh import load_mesh
+
+    meta = pb.meta or {}
+    cands = []
+    if meta.get("mesh_file"):
+        cands.append(Path(problem_file).resolve().parent / meta["mesh_file"])
+    if meta.get("mesh_file_abs"):
+        cands.append(Path(meta["mesh_file_abs"]))
+    for c in cands:
+        if c.is_file():
+            try:
+                m = load_mesh(
+                    c,
+                    meta.get("units", "m"),
+                    meta.get("fit", "none"),
+                    float(meta.get("scale", 1.0)),
+                )
+            except PrecomputeError:
+                return None
+            return trimesh.Trimesh(m.vertices, m.faces, process=False)
+    return None
+
+
 def pose_figure(pb, info, path: Path, panel: int = 150) -> Path:
     """The object in each stable pose with the best grasps of trial 0."""
     from matplotlib.collections import LineCollection
 
     from legs_jax.report import render
 
+    fixed_scale = None
+    if getattr(info, "set", None) == "custom":
+        mesh = _custom_mesh(pb, info.path)
+        if mesh is None:
+            return None
+        fixed_scale = 1.0  # read by precompute, in metres
+    else:
+        mesh = render.load_mesh(info.mesh_path)
     plt = _plt()
-    mesh = render.load_mesh(info.mesh_path)
     P = int(pb.pose_valid.sum())
     fig, axes, rows, cols = _grid(plt, P, 6, 1.6, 1.75, 0.35)
     cmap = plt.get_cmap("viridis")
@@ -239,7 +292,7 @@ def pose_figure(pb, info, path: Path, panel: int = 150) -> Path:
             continue
         ok = np.flatnonzero(pb.valid[0, s])
         transform = pb.pose_transform[s]
-        scale = render.problem_scale(
+        scale = fixed_scale or render.problem_scale(
             pb, mesh.vertices, transform, pb.grasp_center[0, s, ok]
         )
         verts = render.pose_vertices(mesh.vertices, transform, scale)
@@ -352,9 +405,14 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument(
         "--out",
         type=Path,
-        default=Path("results/precompute"),
-        help="output folder (default: results/precompute)",
+        default=None,
+        help="output folder (default: results/precompute when every catalogue "
+        "object is built and reported, the committed results; otherwise "
+        "runs/precompute-report under the current folder)",
     )
+    from ._cli import add_overwrite_arg
+
+    add_overwrite_arg(ap, "--out")
     ap.add_argument(
         "--objects",
         nargs="+",
@@ -367,29 +425,82 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+def _unlearnable_markdown(lines: Sequence[str]) -> str:
+    return (
+        "# Poses that cannot be learned\n\n"
+        "No grasp of these poses can succeed in some trials, or a failed grasp "
+        "never moves the object out of them: no method can learn there, and a "
+        "rollout that lands in such a pose may stay stuck.\n\n"
+        + "".join(f"- {line}\n" for line in lines)
+    )
+
+
+def _custom_problems(folders) -> list:
+    """[(info, path)] of the problem files of the user's own meshes in
+    ``folders`` (``<problems>/custom``), each once."""
+    from types import SimpleNamespace
+
+    out, seen = [], set()
+    for folder in folders:
+        for path in sorted(Path(folder).glob("*.npz")):
+            key = path.resolve()
+            if key in seen:
+                continue
+            seen.add(key)
+            out.append((SimpleNamespace(name=path.stem, set="custom", path=path), path))
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    from legs_jax.core.problem import ProblemFileError, load
+    from legs_jax.core.problem import (
+        ProblemFileError,
+        describe_unlearnable,
+        load,
+        unlearnable_poses,
+    )
 
     from . import catalog
     from .build import problem_path, problems_dir
 
     a = build_parser().parse_args(argv)
     root = a.problems if a.problems is not None else problems_dir()
-    infos = catalog.resolve(a.objects) if a.objects else list(catalog.objects())
+    names = list(a.objects or [])
+    want_custom = not names or "custom" in names
+    names = [n for n in names if n != "custom"]
+    if names:
+        infos = catalog.resolve(names)
+    else:
+        infos = [] if a.objects else list(catalog.objects())
     found = [(i, problem_path(i, root)) for i in infos]
     missing = [i.name for i, p in found if not p.is_file()]
     found = [(i, p) for i, p in found if p.is_file()]
+    custom = []
+    if want_custom:
+        folders = [Path(root) / "custom"]
+        if a.problems is None:  # where python -m precompute --mesh writes
+            folders.append(Path.cwd() / "problems" / "custom")
+        custom = _custom_problems(folders)
+        found += custom
     if not found:
         raise PrecomputeError(
             f"no problem files under {root}: build them with "
-            "'python -m precompute --all'"
+            "'python -m precompute --all' (or --mesh FILE, then report "
+            "--problems problems)"
         )
-    if missing:
+    if missing and len(missing) < len(infos):
         print(f"{len(missing)} object(s) not built, left out: {' '.join(missing)}")
+    full = not a.objects and not missing and not custom
+    if a.out is None:
+        a.out = FULL_OUT if full else PART_OUT
+    if not full:
+        # a part of the catalogue never replaces the committed full report
+        from ._cli import guard_out
+
+        guard_out(a.out, a.overwrite)
 
     from tqdm import tqdm
 
-    rows, by_set, rel, kinds = [], {}, {}, {}
+    rows, by_set, rel, kinds, unlearnable = [], {}, {}, {}, []
     bar = tqdm(found, desc="objects", unit="obj", disable=a.quiet)
     for info, path in bar:
         bar.set_postfix_str(info.name)
@@ -398,6 +509,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         except ProblemFileError as e:
             raise PrecomputeError(str(e)) from None
         rows.append(object_row(pb, info.set))
+        for line in describe_unlearnable(unlearnable_poses(pb)):
+            unlearnable.append(f"{info.set}/{info.name}: {line}")
         # Only what the histogram needs, not the whole problem.
         by_set.setdefault(info.set, []).append((pb.name, pb.robustness[pb.valid]))
         c = reliability_counts(pb.prior[pb.valid], pb.robustness[pb.valid])
@@ -409,10 +522,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
     written = [_write_csv(rows, a.out / "summary.csv")]
     sets = set_rows(rows)
-    written.append(_write_csv(sets, a.out / "sets.csv"))
-    md = a.out / "sets.md"
-    md.write_text(_sets_markdown(sets))
-    written.append(md)
+    if sets:  # the catalogue's sets (none for meshes of the user's own alone)
+        written.append(_write_csv(sets, a.out / "sets.csv"))
+        md = a.out / "sets.md"
+        md.write_text(_sets_markdown(sets))
+        written.append(md)
     if not a.no_figures:
         for set_name, objects in by_set.items():
             written.append(
@@ -424,8 +538,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         written.append(
             reliability_figure(rel, priors, a.out / "figures" / "prior_reliability.png")
         )
-    if not a.quiet:
+    if unlearnable:
+        md = a.out / "unlearnable.md"
+        md.write_text(_unlearnable_markdown(unlearnable))
+        written.append(md)
+    if not a.quiet and sets:
         print(_sets_markdown(sets))
         for p in written:
             print(f"wrote {p}")
+    if unlearnable:
+        print(f"poses that cannot be learned ({len(unlearnable)}):")
+        for line in unlearnable:
+            print(f"  {line}")
+    what = "the full catalogue" if full else f"{len(rows)} object(s)"
+    print(f"report of {what} -> {a.out}")
     return 0
