@@ -28,17 +28,31 @@ committed results are made from, the same on every machine) unless told
 
 Catalogue objects go to <out>/<set>/<name>.npz (default out: the repository's
 data/problems). A mesh of your own (--mesh) goes to <out>/custom/<name>.npz with
-out defaulting to ./problems under the current folder. Up-to-date files (same
-mesh, parameters and code version) are skipped; --force rebuilds them.
+out defaulting to ./problems under the current folder; the problem file records
+where its mesh is (relative to the problem file, and absolutely), so that later
+commands find it. Up-to-date files (same mesh, parameters, prior weights and code
+version) are skipped; --force rebuilds them.
+
+Meshes of your own: a mesh file (--units needed) or a URDF asset (--units m by
+default; its collision mesh, else its visual mesh, at the URDF's scale); --scale
+multiplies after that. Pieces that touch or overlap (within 0.5 % of the
+bounding-box diagonal) are joined into one rigid body; pieces further apart are
+refused. Poses that no method can learn in (no grasp that can succeed, or a pose
+a failure never leaves) are warned of, one line each, and recorded in the file.
 
 Other commands:
   python -m precompute report      summary.csv and figures of built problems
+                                   (results/precompute for the whole catalogue,
+                                   else runs/precompute-report; --out DIR)
   python -m precompute compare     how built problems differ from the shipped set
                                    (data/problemset), array by array
   python -m precompute ship        write the shipped set from built problems
+                                   (--overwrite: it replaces committed files)
   python -m precompute calibrate   prior-only gaps per set for a grid of prior noise
   python -m precompute train-prior generate objects, label them, train the learned
-                                   prior (--quick: about a minute)
+                                   prior (--quick: about a minute) into runs/prior
+                                   (--out DIR); builds use it when told
+                                   --prior-weights runs/prior/weights.npz
 """
 
 
@@ -75,7 +89,9 @@ def _build_parser() -> argparse.ArgumentParser:
         "URDF's scale; --units defaults to m). Pieces that touch or overlap are "
         "joined into one rigid body; pieces apart are refused",
     )
-    add_mesh_size_args(p, "--mesh", " (catalogue meshes know theirs)")
+    add_mesh_size_args(
+        p, "--mesh", " (catalogue meshes know theirs; a URDF defaults to m)"
+    )
     p.add_argument(
         "--scale",
         type=float,

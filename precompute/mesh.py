@@ -26,13 +26,29 @@ Repair, in this order (each one is recorded in ``LoadedMesh.repairs``):
 3. make each remaining piece's winding consistent and its normals point outwards;
 4. close small holes of a piece that is not watertight (``trimesh.repair.fill_holes``),
    and when that is not enough, rebuild the piece's surface with manifold3d;
-5. several substantial pieces are joined into one solid (manifold3d union); if they
-   stay apart (separate bodies) the mesh is refused: one rigid object is expected.
+5. several substantial pieces are joined into one solid (manifold3d union). Parts
+   that stay apart after the union but touch (their surfaces within
+   :data:`TOUCH` = 0.5 % of the bounding-box diagonal of each other: the convex
+   pieces of a V-HACD collision mesh, boxes face to face) are one rigid body, as a
+   physics simulator holds them: mass properties, stable poses and grasps are
+   those of the whole. Parts further apart are refused as separate bodies: one
+   rigid object is expected.
 
-Refusals (:class:`PrecomputeError`, one line naming the file and the defect): missing
-or empty file, a file that does not parse as a mesh, no triangles, degenerate
-geometry (all faces of zero area, or the points lie on a plane or a line), no
-enclosed volume, holes that cannot be closed, separate bodies, implausible size.
+A file made of closed pieces that share points (a collision mesh of convex parts
+written into one file) is glued by step 1 into a shape that is not closed; when
+step 4 cannot close it, the file's own pieces (faces joined by the file's vertex
+indices) are taken apart instead and joined by step 5.
+
+Scale. ``units`` converts the file to metres; ``scale`` (``--scale``) multiplies it
+after that. A URDF (:mod:`precompute.urdf`) is read as the mesh it names at its
+``scale`` attribute, then ``units`` (metres by default) and ``scale``.
+
+Refusals (:class:`PrecomputeError`, one line naming the file, the defect and where
+there is one the next step): missing or empty file, a file of another kind (a
+problem file, a scene, a format not read), a file that does not parse as a mesh, no
+triangles, degenerate geometry (all faces of zero area, or the points lie on a
+plane or a line), no enclosed volume, holes that cannot be closed, separate bodies,
+implausible size.
 """
 
 from __future__ import annotations
