@@ -593,7 +593,12 @@ def _check_size(path: Path, mesh, units: str) -> None:
     hint = ""
     raw = size / UNITS[units]
     fits = [u for u, s in UNITS.items() if _MIN_SIZE <= raw * s <= _MAX_SIZE]
-    if fits:  # the unit giving the most object-like size (about 10 cm)
+    if path.suffix.lower() == ".urdf":  # in metres, at its own scale
+        hint = (
+            f"; resize it with --scale (e.g. --scale {0.1 / size:.2g} for a "
+            "longest side of 10 cm)"
+        )
+    elif fits:  # the unit giving the most object-like size (about 10 cm)
         u = min(fits, key=lambda u: abs(np.log(raw * UNITS[u] / 0.1)))
         hint = f"; is it in {u}? (pass --units {u})"
     raise _refuse(

@@ -198,6 +198,10 @@ def test_urdf_build_records_where_its_mesh_is(tmp_path, capsys):
 
 
 def test_urdf_refusals_name_file_defect_and_next_step(tmp_path):
+    _save(tmp_path, "big.obj", _box((4.0, 6.0, 2.0)))
+    path = _urdf(tmp_path, "big.obj", "0.5 0.5 0.5")  # 3 m long
+    with pytest.raises(PrecomputeError, match=r"implausible size.*--scale 0\.033"):
+        load_mesh(path)
     path = _urdf(tmp_path, "missing.obj", "1 1 1")
     with pytest.raises(PrecomputeError) as info:
         load_mesh(path)
