@@ -306,7 +306,9 @@ def build_problem(
         "dropped_landing_mass": round(sp.dropped_mass, 6),
         "poses": pose_info,
         "code_version": CODE_VERSION,
-        "build_hash": build_hash(mesh.sha256, units, name, params, fit, scale=scale),
+        "build_hash": build_hash(
+            mesh.source_sha256, units, name, params, fit, scale=scale
+        ),
     }
     problem = Problem(
         name=name,

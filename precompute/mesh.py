@@ -102,7 +102,11 @@ class LoadedMesh:
     units: str
     fit: str  # size rule applied: "none" or "egad"
     repairs: tuple[str, ...]  # what was repaired, in words
-    sha256: str  # of the file's bytes
+    # what the mesh is as read: the source's digest (:func:`source_sha256`), and
+    # with a factor ``scale`` other than 1 that factor too, so that the same file
+    # read without it is not taken for the same mesh
+    sha256: str
+    source_sha256: str = ""  # of the file's bytes (a URDF's: and of its meshes)
 
     def trimesh(self):
         import trimesh
@@ -124,8 +128,8 @@ def file_sha256(path: str | Path) -> str:
 
 
 def source_sha256(path: str | Path) -> str:
-    """What :attr:`LoadedMesh.sha256` is for ``path`` without loading it: the
-    file's SHA-256, or for a URDF that of its bytes and of the mesh files it
+    """What :attr:`LoadedMesh.source_sha256` is for ``path`` without loading it:
+    the file's SHA-256, or for a URDF that of its bytes and of the mesh files it
     names."""
     if Path(path).suffix.lower() == ".urdf":
         import hashlib as _h
@@ -138,6 +142,10 @@ def source_sha256(path: str | Path) -> str:
                 h.update(bytes.fromhex(file_sha256(g["file"])))
         return h.hexdigest()
     return file_sha256(path)
+
+
+def _scaled_sha(sha: str, scale: float) -> str:
+    return hashlib.sha256(f"{sha} scale {scale!r}".encode()).hexdigest()
 
 
 def check_mesh_kind(path: str | Path) -> None:
@@ -197,7 +205,8 @@ def load_mesh(
     else:
         vertices, faces, sha = read_mesh_file(path)
 
-    scale = UNITS[units] * float(scale)
+    user_scale = float(scale)
+    scale = UNITS[units] * user_scale
     vertices = vertices * scale
     repairs: list[str] = []
     mesh = trimesh.Trimesh(vertices, faces, process=False)
@@ -259,7 +268,8 @@ def load_mesh(
         units=units,
         fit=fit,
         repairs=tuple(repairs),
-        sha256=sha,
+        sha256=sha if user_scale == 1.0 else _scaled_sha(sha, user_scale),
+        source_sha256=sha,
     )
 
 

@@ -133,6 +133,13 @@ def test_scale_applies_after_units_and_is_recorded(tmp_path, capsys):
     assert main([*args, *SMALL, "--prior", "synthetic", "--quiet"]) == 0
     meta = problem_mod.peek(out / "custom" / "box.npz")["meta"]
     assert meta["scale"] == 0.5 and meta["mesh_scale"] == pytest.approx(0.0005)
+    # the mesh is recorded as read at that scale: read without it, it is another
+    assert meta["mesh_sha256"] == m.sha256 != load_mesh(path, "mm").sha256
+    assert load_mesh(path, "mm").sha256 == _sha(path)
+    # the same command again: up to date
+    capsys.readouterr()
+    assert main([*args, *SMALL, "--prior", "synthetic", "--quiet"]) == 0
+    assert "1 up-to-date problem file(s) skipped" in capsys.readouterr().out
     # another scale is another problem: not up to date
     capsys.readouterr()
     assert main([*args[:-4], "--scale", "0.6", "--out", str(out), *SMALL,
