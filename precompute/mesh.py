@@ -156,6 +156,10 @@ def check_mesh_kind(path: str | Path) -> None:
         raise _refuse(path, _wrong_kind(suffix))
 
 
+#: The next step after a refusal for a shape that is not a solid.
+_AS_SOLID = ": export the object as a closed solid (e.g. from MeshLab or Blender)"
+
+
 def _refuse(path: Path, defect: str) -> PrecomputeError:
     return PrecomputeError(f"{path}: {defect}")
 
@@ -216,7 +220,7 @@ def load_mesh(
     n_faces = len(mesh.faces)
     _clean(mesh)
     if len(mesh.faces) == 0:
-        raise _refuse(path, "degenerate: every face has zero area")
+        raise _refuse(path, "degenerate: every face has zero area" + _AS_SOLID)
     if len(mesh.faces) < n_faces:
         n_bad = n_faces - len(mesh.faces)
         repairs.append(f"dropped {_count(n_bad, 'degenerate or duplicate face')}")
@@ -224,7 +228,9 @@ def load_mesh(
     centred = mesh.vertices - mesh.vertices.mean(axis=0)
     sv = np.linalg.svd(centred, compute_uv=False)
     if len(sv) < 3 or sv[2] <= 1e-9 * max(sv[0], 1e-300):
-        raise _refuse(path, "degenerate: all points lie on a plane or a line")
+        raise _refuse(
+            path, "degenerate: all points lie on a plane or a line" + _AS_SOLID
+        )
     _check_size(path, mesh, units)
     open_before = _count_open_edges(mesh)
 
@@ -380,7 +386,9 @@ def _assemble(path: Path, pieces, extents, repairs: list[str], min_volume=0.01):
     solid = [_close_piece(path, piece, repairs) for piece in kept]
     vol = np.array([abs(p.volume) for p in solid])
     if vol.max() <= 1e-9 * float(np.prod(np.maximum(extents, 1e-12))):
-        raise _refuse(path, "no volume (an open or flat surface, not a solid)")
+        raise _refuse(
+            path, "no volume (an open or flat surface, not a solid)" + _AS_SOLID
+        )
     # pieces without volume (sheets, or cavities of negligible size) are stray too
     substantial = [
         p for p, v in zip(solid, vol, strict=True) if v >= min_volume * vol.max()
@@ -419,7 +427,7 @@ def _assemble(path: Path, pieces, extents, repairs: list[str], min_volume=0.01):
     else:
         result = substantial[0]
     if not result.is_watertight or result.volume <= 0:
-        raise _refuse(path, "no volume after repair (not a closed solid)")
+        raise _refuse(path, "no volume after repair (not a closed solid)" + _AS_SOLID)
     return result
 
 
