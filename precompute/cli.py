@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-from ._cli import add_mesh_size_args
+from ._cli import add_mesh_size_args, add_overwrite_arg
 from .errors import PrecomputeError
 
 BUILD_HELP = """\
@@ -140,6 +140,7 @@ def _build_parser() -> argparse.ArgumentParser:
         "--jobs", type=int, default=None, help="worker processes (default: CPU cores)"
     )
     p.add_argument("--force", action="store_true", help="rebuild up-to-date files too")
+    add_overwrite_arg(p, "--out")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     return p
 
@@ -199,6 +200,7 @@ def _build(argv) -> int:
         out = a.out if a.out is not None else Path.cwd() / "problems"
         name = a.mesh.stem
         dest = Path(out) / "custom" / f"{name}.npz"
+        _guard_files([dest], out, a.overwrite)
         tasks = [Task(a.mesh, a.units, name, "custom", dest, a.fit, a.scale)]
         skipped = []
         if not a.force and a.mesh.is_file():
@@ -235,6 +237,7 @@ def _build(argv) -> int:
         from tqdm import tqdm
 
         tasks, skipped, repriored = [], [], []
+        _guard_files([problem_path(i, out) for i in infos], out, a.overwrite)
         # recomputing a learned prior renders and scores every pose: show it
         bar = tqdm(infos, desc="check", unit="obj", disable=a.quiet, leave=False)
         for i in bar:
@@ -271,6 +274,24 @@ def _build(argv) -> int:
         print(f"problem file: {tasks[0].dest}")
     _warn_unlearnable([(t.name, r[3]) for t, r in zip(tasks, results, strict=True)])
     return 0
+
+
+def _guard_files(dests, out: Path, overwrite: bool) -> None:
+    """Refuse to write problem files over files committed to the repository (the
+    shipped set, say) unless ``overwrite``."""
+    from ._cli import repo_root, tracked_under
+
+    if overwrite:
+        return
+    tracked = {p.resolve() for p in tracked_under(out)}
+    hits = [d for d in dests if Path(d).resolve() in tracked]
+    if hits:
+        shown = Path(hits[0]).resolve().relative_to(repo_root())
+        raise PrecomputeError(
+            f"--out {out} would replace {len(hits)} file(s) committed to the "
+            f"repository (e.g. {shown}): pass --overwrite to replace them, or "
+            "choose another --out"
+        )
 
 
 def _recorded_flags(path: Path) -> list:

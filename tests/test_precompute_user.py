@@ -327,6 +327,16 @@ def test_report_of_part_of_the_catalogue_never_cuts_the_committed_summary(
     assert _sha(SUMMARY) == before
 
 
+def test_build_over_the_committed_set_needs_overwrite(capsys):
+    shipped = REPO / "data" / "problemset"
+    target = shipped / "dexnet_adv" / "pawn.npz"
+    before = _sha(target)
+    assert main(["--object", "pawn", "--out", str(shipped), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "--overwrite" in err and "committed" in err
+    assert _sha(target) == before
+
+
 def test_ship_into_the_committed_set_needs_overwrite(capsys):
     assert main(["ship", "--quiet"]) == 2
     assert "--overwrite" in capsys.readouterr().err
