@@ -45,8 +45,9 @@ EXPERIMENTS = experiments.EXPERIMENTS
 
 _PROG = "python -m legs_jax.sweep"
 _DESCRIPTION = (
-    "Run the paper's experiments (SPEC §7) as resumable, chunked sweeps and "
-    "write tidy parquet results under OUT/<experiment>/: runs.parquet (one "
+    "Run the paper's experiments, or your own configuration of them, as "
+    "resumable, chunked sweeps and write tidy parquet results under "
+    "OUT/<experiment>/: runs.parquet (one "
     "row per run), curves.parquet (gap every 10 steps, mean and standard "
     "error over the T x R runs of each object, method and hyperparameters), "
     "checks.parquet (one row per Dirichlet check), manifest.json. Re-running "
@@ -128,7 +129,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="extend",
         metavar="NAME",
         help="run only these methods (separated by spaces or commas): registered "
-        "names (python -c 'from legs_jax import methods; print(methods.names())') "
+        "names (python -c 'from legs_jax.core import methods; print(methods.names())') "
         "or module.path:ATTRIBUTE for a method of your own; a method that no "
         "experiment declares (your own, or an extra such as Bayes-UCB) runs in each "
         "selected experiment with its default hyperparameters",
@@ -154,7 +155,7 @@ def build_parser() -> argparse.ArgumentParser:
         f"({SMOKE['num_poses']} poses, {SMOKE['num_grasps']} grasps) named like the "
         f"real objects (at most {SMOKE['max_objects']} per experiment), "
         f"T={SMOKE['trials']}, R={SMOKE['rollouts']}, H={SMOKE['horizon']}; "
-        "default --out results/_scratch/smoke",
+        "default --out runs/smoke",
     )
     out = p.add_argument_group("output and devices")
     out.add_argument(
@@ -162,7 +163,13 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="delete existing results of the selected experiments and start over",
     )
-    out.add_argument("--out", metavar="DIR", help="output folder (default results)")
+    out.add_argument(
+        "--out",
+        metavar="DIR",
+        help="output folder (default: results/ for the experiments at their "
+        "declared configuration, else a folder of its own under runs/ named from "
+        "what differs, e.g. runs/main-bar_clamp-legs+tql)",
+    )
     out.add_argument(
         "--no-reuse",
         action="store_true",
@@ -190,6 +197,61 @@ def build_parser() -> argparse.ArgumentParser:
     dist.add_argument("--num-processes", type=_positive_int, metavar="N")
     dist.add_argument("--process-id", type=_nonneg_int, metavar="I")
     return p
+
+
+# The folder of the paper's experiments at their declared configuration, and the
+# one under which any other configuration gets a folder of its own.
+RESULTS = "results"
+# Files that are meshes, not problems (precompute --mesh makes a problem of them).
+_MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf", ".dae", ".urdf")
+RUNS = "runs"
+_SLUG_MAX = 80
+
+
+def own_configuration(a: argparse.Namespace) -> list[str]:
+    """What makes a parsed command line differ from the experiments' declared
+    configuration, as short words for a folder name (empty: the declared one)."""
+
+    def names(values) -> str:
+        return "+".join(str(v).replace(":", ".").replace("/", "_") for v in values)
+
+    parts = []
+    if a.objects:
+        parts.append(names(a.objects))
+    if a.problems:
+        parts.append(names(Path(f).stem for f in a.problems))
+    if a.methods:
+        parts.append(names(a.methods))
+    if a.grid:
+        parts.append("grid-" + names(a.grid))
+    for flag, letter in (("trials", "T"), ("rollouts", "R"), ("horizon", "H")):
+        if getattr(a, flag):
+            parts.append(f"{letter}{getattr(a, flag)}")
+    if a.seed:
+        parts.append(f"seed{a.seed}")
+    if getattr(a, "problem_source", "shipped") != "shipped":
+        parts.append(a.problem_source)
+    return parts
+
+
+def default_out(a: argparse.Namespace) -> Path:
+    """Where a sweep writes without --out: ``results`` at the experiments' declared
+    configuration, else a folder of its own under ``runs/`` named from what
+    differs (``runs/main-bar_clamp-legs+tql``), so that a user's sweep never
+    meets the shipped results."""
+    if a.smoke:
+        return Path(RUNS) / "smoke"
+    parts = own_configuration(a)
+    if not parts:
+        return Path(RESULTS)
+    exps = "all" if a.all else "+".join(dict.fromkeys(a.experiment or ()))
+    slug = "-".join([exps, *parts])
+    if len(slug) > _SLUG_MAX:
+        import hashlib
+
+        digest = hashlib.sha256(slug.encode()).hexdigest()[:8]
+        slug = f"{slug[: _SLUG_MAX - 9]}-{digest}"
+    return Path(RUNS) / slug
 
 
 def _split_commas(values: Sequence[str] | None) -> list[str] | None:
@@ -251,6 +313,18 @@ def _validate_args(p: argparse.ArgumentParser, a: argparse.Namespace) -> None:
     for f in a.problems or ():
         if not Path(f).is_file():
             p.error(f"--problems: no such file: {f}")
+        suffix = Path(f).suffix.lower()
+        if suffix in _MESH_SUFFIXES:
+            p.error(
+                f"--problems takes problem files (.npz); {f} is a mesh: build its "
+                f"problem first with `python -m precompute --mesh {f} --units mm` "
+                "(say the mesh's units), then pass the .npz file it prints"
+            )
+        if suffix != ".npz":
+            p.error(
+                f"--problems takes problem files (.npz, as `python -m precompute "
+                f"--mesh` writes them); {f} is not one"
+            )
     dist = (a.coordinator, a.num_processes, a.process_id)
     if any(x is not None for x in dist) and not all(x is not None for x in dist):
         p.error("--coordinator, --num-processes and --process-id go together")
@@ -269,6 +343,23 @@ def _check_user_methods(plans: Sequence[ExperimentPlan], quiet: bool) -> None:
     for name in sorted(n for n in names if not methods.builtin(n)):
         _say(f"{name}: conformance checks (jit, jit-vmap, masks, finite)", quiet)
         conformance.check(methods.get(name))
+
+
+def _warn_unlearnable(plans: Sequence[ExperimentPlan]) -> None:
+    """Say, before any chunk runs, which problems have poses in which no method
+    can learn (:func:`legs_jax.core.problem.unlearnable_poses`): their gaps then
+    measure the problem, not the methods."""
+    from legs_jax.core import problem as problem_mod
+
+    seen: set[str] = set()
+    for plan in plans:
+        for o in plan.objects:
+            if o.path in seen:
+                continue
+            seen.add(o.path)
+            flags = problem_mod.unlearnable_poses(problem_mod.load(o.path))
+            for line in problem_mod.describe_unlearnable(flags):
+                print(f"warning: {o.name} ({o.path}): {line}", file=sys.stderr)
 
 
 def _print_plan(plan: ExperimentPlan, out: Path, overwrite: bool = False) -> None:
@@ -333,7 +424,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     a = parser.parse_args(argv)
     _validate_args(parser, a)
     _set_device_flags(a.devices)
-    out = Path(a.out or ("results/_scratch/smoke" if a.smoke else "results"))
+    out = Path(a.out) if a.out else default_out(a)
+    if not a.out and out != Path(RESULTS):
+        _say(
+            f"your own configuration: results go to {out}/ ({RESULTS}/ holds the "
+            "paper's experiments at their declared configuration; --out DIR "
+            "chooses another folder)",
+            a.quiet,
+        )
     names = (
         list(EXPERIMENTS)
         if (a.all or (a.smoke and not a.experiment))
@@ -388,6 +486,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if a.dry_run:
             for plan in plans:
                 _print_plan(plan, out, a.overwrite)
+            _warn_unlearnable(
+                [p for p in plans if a.overwrite or not _complete_and_current(p, out)]
+            )
             return 0
         _check_user_methods(plans, a.quiet)
         # Refuse conflicting results of any experiment before running anything
@@ -422,6 +523,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             statuses[name] = "already complete"
         kept += complete
         plans = [p for p in plans if p.name not in kept]
+        _warn_unlearnable(plans)
         for plan in plans:
             sessions[plan.name] = run_experiment(
                 plan,
