@@ -901,3 +901,77 @@ def test_dry_run_with_overwrite_says_it_recomputes(
     assert "--overwrite: all" in said and "180 rollouts to run" in said
     assert "deleting the results in it first" in said
     assert _files(tmp_path) == before
+
+
+@pytest.mark.parametrize(
+    "args, folder",
+    [
+        (["--all"], "results"),
+        (["--experiment", "main", "confidence"], "results"),
+        (
+            ["--experiment", "main", "--objects", "bar_clamp", "--methods", "legs,tql"],
+            "runs/main-bar_clamp-legs+tql",
+        ),
+        (
+            ["--experiment", "main", "--objects", "dexnet_adv", "--methods", "legs"]
+            + ["--grid", "delta=0.01,0.05", "s=0,1"],
+            "runs/main-dexnet_adv-legs-grid-delta+s",
+        ),
+        (["--experiment", "main", "--horizon", "500"], "runs/main-H500"),
+        (["--all", "--seed", "3"], "runs/all-seed3"),
+        (["--experiment", "main", "--problem-source", "built"], "runs/main-built"),
+        (["--smoke"], "runs/smoke"),
+        (
+            ["--experiment", "main", "--methods", "legs,my_pkg.mine:METHOD"],
+            "runs/main-legs+my_pkg.mine.METHOD",
+        ),
+    ],
+)
+def test_results_is_the_default_folder_of_the_declared_configuration_only(
+    args, folder
+):
+    p = sweep.cli.build_parser()
+    a = p.parse_args(args)
+    a.methods = sweep.cli._split_commas(a.methods)
+    a.grid = sweep.cli._parse_grid(p, a.grid) if a.grid else None
+    assert sweep.cli.default_out(a) == Path(folder)
+
+
+def test_a_long_folder_name_is_cut_and_keeps_its_identity():
+    p = sweep.cli.build_parser()
+    names = [f"object_{i:02d}" for i in range(20)]
+    a = p.parse_args(["--experiment", "main", "--objects", *names])
+    out = sweep.cli.default_out(a)
+    assert out.parent == Path("runs") and len(out.name) <= 80
+    b = p.parse_args(["--experiment", "main", "--objects", *names[:-1], "other"])
+    assert sweep.cli.default_out(b) != out
+
+
+def test_a_users_sweep_writes_under_runs_and_never_touches_results(
+    tmp_path, probs, fake_engine, capsys, monkeypatch
+):
+    monkeypatch.chdir(tmp_path)
+    args = ["--experiment", "main", "--problems", probs[0], "--methods", "tql"]
+    code = sweep.main(
+        [*args, "--trials", "1", "--rollouts", "1", "--horizon", "50"]
+        + ["--compile-cache", "off"]
+    )
+    err = capsys.readouterr().err
+    assert code == 0
+    folder = Path("runs/main-alpha-tql-T1-R1-H50")
+    assert f"results go to {folder}/" in err
+    assert (tmp_path / folder / "main" / "runs.parquet").is_file()
+    assert not (tmp_path / "results").exists()
+
+
+def test_a_mesh_given_as_a_problem_names_the_command_that_builds_one(
+    tmp_path, capsys
+):
+    mesh = tmp_path / "duck.obj"
+    mesh.write_text("v 0 0 0\n")
+    with pytest.raises(SystemExit) as e:
+        sweep.main(["--problems", str(mesh)])
+    err = capsys.readouterr().err
+    assert e.value.code == 2
+    assert "is a mesh" in err and f"python -m precompute --mesh {mesh}" in err
+    assert "pickle" not in err and "Traceback" not in err
