@@ -927,9 +927,7 @@ def test_dry_run_with_overwrite_says_it_recomputes(
         ),
     ],
 )
-def test_results_is_the_default_folder_of_the_declared_configuration_only(
-    args, folder
-):
+def test_results_is_the_default_folder_of_the_declared_configuration_only(args, folder):
     p = sweep.cli.build_parser()
     a = p.parse_args(args)
     a.methods = sweep.cli._split_commas(a.methods)
@@ -964,9 +962,7 @@ def test_a_users_sweep_writes_under_runs_and_never_touches_results(
     assert not (tmp_path / "results").exists()
 
 
-def test_a_mesh_given_as_a_problem_names_the_command_that_builds_one(
-    tmp_path, capsys
-):
+def test_a_mesh_given_as_a_problem_names_the_command_that_builds_one(tmp_path, capsys):
     mesh = tmp_path / "duck.obj"
     mesh.write_text("v 0 0 0\n")
     with pytest.raises(SystemExit) as e:
