@@ -26,6 +26,7 @@ import experiments
 # ---------------------------------------------------------------------- helpers
 from legs_jax import results, sweep, synthetic
 from legs_jax.core import methods, problem
+from legs_jax.errors import ConfigError
 
 
 @pytest.fixture(autouse=True)
@@ -828,7 +829,7 @@ def test_repeated_list_options_add_up():
         ["--experiment", "main", "--methods", "legs", "--methods", "tql"]
         + ["--grid", "delta=0.05,0.1", "--grid", "s=1,2"]
     )
-    sweep.cli._validate_args(p, a)
+    a = sweep.config.validate(sweep.SweepConfig.from_namespace(a))
     assert a.methods == ["legs", "tql"]
     assert a.grid == {"delta": (0.05, 0.05, 0.1, 0.1), "s": (1.0, 2.0, 1.0, 2.0)}
     a = p.parse_args(["--experiment", "main", "--experiment", "confidence"])
@@ -841,8 +842,13 @@ def test_a_grid_axis_given_twice_is_refused(capsys):
         ["--experiment", "main", "--methods", "legs"]
         + ["--grid", "s=1", "--grid", "s=2"]
     )
+    with pytest.raises(ConfigError, match="s given twice"):
+        sweep.config.validate(sweep.SweepConfig.from_namespace(a))
     with pytest.raises(SystemExit) as e:
-        sweep.cli._validate_args(p, a)
+        sweep.main(
+            ["--experiment", "main", "--methods", "legs"]
+            + ["--grid", "s=1", "--grid", "s=2"]
+        )
     assert e.value.code == 2 and "s given twice" in capsys.readouterr().err
 
 
@@ -928,21 +934,19 @@ def test_dry_run_with_overwrite_says_it_recomputes(
     ],
 )
 def test_results_is_the_default_folder_of_the_declared_configuration_only(args, folder):
-    p = sweep.cli.build_parser()
-    a = p.parse_args(args)
-    a.methods = sweep.cli._split_commas(a.methods)
-    a.grid = sweep.cli._parse_grid(p, a.grid) if a.grid else None
-    assert sweep.cli.default_out(a) == Path(folder)
+    a = sweep.config.validate(
+        sweep.SweepConfig.from_namespace(sweep.cli.build_parser().parse_args(args))
+    )
+    assert sweep.config.default_out(a) == Path(folder)
 
 
 def test_a_long_folder_name_is_cut_and_keeps_its_identity():
-    p = sweep.cli.build_parser()
     names = [f"object_{i:02d}" for i in range(20)]
-    a = p.parse_args(["--experiment", "main", "--objects", *names])
-    out = sweep.cli.default_out(a)
+    a = sweep.SweepConfig(experiment=["main"], objects=names)
+    out = sweep.config.default_out(a)
     assert out.parent == Path("runs") and len(out.name) <= 80
-    b = p.parse_args(["--experiment", "main", "--objects", *names[:-1], "other"])
-    assert sweep.cli.default_out(b) != out
+    b = sweep.SweepConfig(experiment=["main"], objects=[*names[:-1], "other"])
+    assert sweep.config.default_out(b) != out
 
 
 def test_a_users_sweep_writes_under_runs_and_never_touches_results(
@@ -971,3 +975,38 @@ def test_a_mesh_given_as_a_problem_names_the_command_that_builds_one(tmp_path, c
     assert e.value.code == 2
     assert "is a mesh" in err and f"python -m precompute --mesh {mesh}" in err
     assert "pickle" not in err and "Traceback" not in err
+
+
+def test_a_sweep_runs_from_python(tmp_path, probs, fake_engine):
+    out = sweep.run(
+        problems=[probs[0]],
+        methods=["tql", "legs"],
+        trials=1,
+        rollouts=2,
+        horizon=50,
+        out=str(tmp_path / "mine"),
+        quiet=True,
+        compile_cache="off",
+    )
+    assert out == tmp_path / "mine"
+    runs = pd.read_parquet(out / "main" / "runs.parquet")
+    assert set(runs.method) == {"tql", "legs"} and len(runs) == 2 * 2
+    assert json.loads((out / "main" / "manifest.json").read_text())["status"] == (
+        "complete"
+    )
+    # the same configuration again: complete, nothing recomputed
+    calls = len(fake_engine)
+    again = sweep.run(
+        sweep.SweepConfig(problems=[probs[0]], methods=["tql", "legs"]),
+        trials=1,
+        rollouts=2,
+        horizon=50,
+        out=str(tmp_path / "mine"),
+        quiet=True,
+        compile_cache="off",
+    )
+    assert again == out and len(fake_engine) == calls
+    with pytest.raises(ConfigError, match="unknown method 'leg'.*did you mean legs"):
+        sweep.run(experiment=["main"], methods=["leg"])
+    with pytest.raises(ConfigError, match="nothing to run"):
+        sweep.run()
