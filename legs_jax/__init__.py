@@ -26,8 +26,8 @@ __all__ = [
 _WHERE = {
     "ConfigError": "legs_jax.errors",
     "Method": "legs_jax.core.methods.base",
-    "RunResult": "legs_jax.core.engine",
-    "run": "legs_jax.core.engine",
+    "RunResult": "legs_jax.runtime.rollouts",
+    "run": "legs_jax.runtime.rollouts",
     "Problem": "legs_jax.core.problem",
     "ProblemBatch": "legs_jax.core.problem",
     "load": "legs_jax.core.problem",

@@ -14,7 +14,8 @@ import pandas as pd
 import pytest
 from results_fixture import DEXNET, EGAD, make_data, write_experiment
 
-from legs_jax.report import figures, grid
+from legs_jax import figures as figures_cli
+from legs_jax.report import grid
 
 # A product grid over two of LEGS's hyperparameters, as --grid writes it: every
 # combination of delta in (0.01, 0.1) and s in (0, 1, 2) in one arm.
@@ -28,7 +29,7 @@ def data(tmp_path_factory):
 
 
 def _figures(results, out, data, capsys):
-    rc = figures.main(
+    rc = figures_cli.main(
         ["--results", str(results), "--out", str(out), "--data", str(data), "--quiet"]
     )
     return rc, capsys.readouterr().err

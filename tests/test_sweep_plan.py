@@ -104,7 +104,7 @@ def test_experiment_modules_declare_valid_arms(name):
     arms = [sweep.make_arm(*a) for a in mod.ARMS]
     assert arms
     assert set(mod.CHECK_METHODS) <= {a.method for a in arms}
-    if not getattr(mod, "GENERATED", ()):  # the paper's sizes (SPEC §7)
+    if not getattr(mod, "GENERATED", ()):  # the paper's sizes
         assert mod.TRIALS == 10 and mod.ROLLOUTS == 10 and mod.HORIZON == 3000
     assert 1 <= len(mod.SMOKE_OBJECTS) <= 2
 
@@ -822,7 +822,7 @@ def test_projection_by_chunk_charges_each_bucket_its_rate_and_copies_nothing():
 
 
 def test_repeated_list_options_add_up():
-    """Issue 26, 1: a list option given twice keeps both (argparse's default
+    """A list option given twice keeps both (argparse's default
     would keep only the last and run another grid without a word)."""
     p = sweep.cli.build_parser()
     a = p.parse_args(
@@ -857,7 +857,7 @@ def test_a_grid_axis_given_twice_is_refused(capsys):
 def test_damaged_merged_table_is_merged_again(
     tmp_path, probs, fake_engine, capsys, damage, chunks
 ):
-    """Issue 26, 5: a merged table overwritten or lost is not reported complete:
+    """A merged table overwritten or lost is not reported complete:
     it is named in a warning and merged again from the chunks (or, where the
     chunks are gone, computed again); the tables then equal an undamaged run's."""
     base = ["--experiment", "confidence", "--problems", *probs, "--trials", "1"]
@@ -894,7 +894,7 @@ def test_damaged_merged_table_is_merged_again(
 def test_dry_run_with_overwrite_says_it_recomputes(
     tmp_path, probs, fake_engine, capsys
 ):
-    """Issue 26, 3: --dry-run --overwrite says what --overwrite does: every chunk
+    """--dry-run --overwrite says what --overwrite does: every chunk
     computed again, not "complete ... compute nothing"."""
     args = ["--experiment", "prior_strength", "--problems", probs[0]]
     args += ["--out", str(tmp_path), "--trials", "3"]

@@ -1,4 +1,4 @@
-"""The problem of one object (SPEC §1), its file format, and batches of problems.
+"""The problem of one object, its file format, and batches of problems.
 
 A problem is everything the bandit environment needs about one object: where a drop
 lands, where a failed grasp topples it, and for each of T reservoirs of K grasps per
@@ -60,7 +60,7 @@ class ProblemFileError(ValueError):
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Problem:
-    """One object after precompute (SPEC §1). All arrays are NumPy arrays.
+    """One object after precompute. All arrays are NumPy arrays.
 
     Padding beyond the object's own poses (``pose_valid`` False) and beyond its own
     grasps (``valid`` False) is allowed; it is never sampled and never counted.
@@ -615,7 +615,7 @@ def load(path: str | os.PathLike) -> Problem:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class ProblemBatch:
-    """Several problems padded to common T, P and K (SPEC §1: padding is masked).
+    """Several problems padded to common T, P and K (padding is masked).
 
     Only the arrays the bandit engine needs are kept; geometry stays in the
     individual :class:`Problem` objects.

@@ -5,7 +5,7 @@ given and the problem's own reservoirs and prior (``given_poses``): the robot
 executes each asked grasp with the perturbed physics, drops or topples the object
 by λ and the topple matrix, and the gap Σ_s λ_s (p*_s − p[s, π_t(s)]) is read
 from the problem's table p every ``every`` steps. Engine:
-:func:`legs_jax.core.engine.run` on the same problem, trial, method and
+:func:`legs_jax.runtime.run` on the same problem, trial, method and
 hyperparameters (its rewards are draws from the table p).
 
 Agreement (the tolerance of the test and of the table written here): at every
@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from legs_jax.core import engine
+from legs_jax import runtime
 from legs_jax.core.problem import stack
 from legs_jax.online.robot import World
 from legs_jax.online.simulate import Simulation, save_figure
@@ -84,7 +84,7 @@ def online_curves(
 
 def engine_curves(problem, *, method, rollouts, horizon, every, trial=0, seed=0):
     """Gap curves [R, C] of the batched engine."""
-    res = engine.run(
+    res = runtime.run(
         stack([problem]),
         method,
         object_ids=[0],
@@ -174,7 +174,7 @@ def main(args) -> int:
         f"Online: {args.rollouts} sessions (seeds 0..{args.rollouts - 1}) against the "
         "simulated robot, true pose given, the problem's reservoirs and prior; "
         "outcomes from the perturbed physics. Engine: "
-        f"{args.engine_rollouts} rollouts of `engine.run` (outcomes drawn from the "
+        f"{args.engine_rollouts} rollouts of `runtime.run` (outcomes drawn from the "
         "table p). Gap Δ_t from the table p in both.",
         "",
         "Agreement: |difference of the means| ≤ 3·SE + "

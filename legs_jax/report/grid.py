@@ -242,9 +242,13 @@ def grid_figure(per_set: pd.DataFrame, axes: Sequence[str], path: Path) -> Path:
             for _, r in d.iterrows():
                 grid[ys.index(r[y_ax]), xs.index(r[x_ax])] = r["mean"]
             im = ax.imshow(grid, origin="lower", cmap="viridis_r", vmin=vmin, vmax=vmax)
+            mid = 0.5 * (vmin + vmax)
             for (i, j), val in np.ndenumerate(grid):
-                if np.isfinite(val):
-                    ax.text(j, i, f"{val:.3f}", ha="center", va="center", fontsize=7)
+                if np.isfinite(val):  # dark cells (high gaps) get white text
+                    ax.text(
+                        j, i, f"{val:.3f}", ha="center", va="center", fontsize=7,
+                        color="white" if val > mid else "black",
+                    )  # fmt: skip
             ax.set_xticks(range(len(xs)), [f"{x:g}" for x in xs])
             ax.set_yticks(range(len(ys)), [f"{y:g}" for y in ys])
             ax.set_xlabel(x_ax)
@@ -325,6 +329,7 @@ def grid_step(experiment: str, axes: Sequence[str]):
         run.ctx[f"grid:{experiment}"] = dict(
             axes=list(axes),
             per_set=t["per_set"],
+            per_object=t["per_object"],
             horizon=int(runs["horizon"].max()) if "horizon" in runs else None,
             tables=run.tables,
             figures=run.figures,
@@ -334,27 +339,42 @@ def grid_step(experiment: str, axes: Sequence[str]):
     return step
 
 
-def _best_lines(per_set: pd.DataFrame, axes: Sequence[str]) -> list[str]:
-    """Per set and arm: the grid point of lowest mean gap, and whether the spread
-    over the grid exceeds the noise (twice the largest standard error)."""
+def _best_lines(
+    per_set: pd.DataFrame, per_object: pd.DataFrame, axes: Sequence[str]
+) -> list[str]:
+    """Per set and arm: the grid point of lowest mean gap, and whether it is
+    better than every other point by more than noise. The points are compared
+    paired by object (the same objects and, at every grid point, the same random
+    numbers): the difference of each object's mean gap from the best point's,
+    its mean and standard error across objects."""
     lines = []
     for (s, m, v), d in per_set.groupby(["set", "method", "variant"], sort=False):
+        if len(d) < 2:
+            continue
         best = d.loc[d["mean"].idxmin()]
-        spread = float(d["mean"].max() - d["mean"].min())
-        se_max = (
-            float(np.nanmax(d["se"].to_numpy(float)))
-            if d["se"].notna().any()
-            else math.nan
-        )
-        resolved = math.isfinite(se_max) and spread >= 2 * se_max
+        objs = per_object[
+            (per_object["set"] == s)
+            & (per_object["method"] == m)
+            & (per_object["variant"] == v)
+        ]
+        wide = objs.pivot_table(index="object", columns=list(axes), values="gap_mean")
+        key = tuple(best[a] for a in axes) if len(axes) > 1 else best[axes[0]]
+        diffs = wide.sub(wide[key], axis=0).drop(columns=[key])
+        mean = diffs.mean(axis=0)
+        se = diffs.std(axis=0, ddof=1) / np.sqrt(diffs.count(axis=0))
+        ratio = (mean / se.replace(0.0, np.nan)).fillna(np.inf)
+        rival = ratio.idxmin()
+        rival_pt = dict(zip(axes, rival if len(axes) > 1 else (rival,), strict=True))
+        resolved = bool((mean >= 2.0 * se).all()) and bool(np.isfinite(se).all())
         lines.append(
             f"- {an.SET_LABELS.get(s, s)}, {_arm_label(m, v)}: lowest mean gap "
-            f"{rp.fmt(float(best['mean']))} at {_point(best, axes)}; the means "
-            f"span {rp.fmt(spread)} against standard errors up to {rp.fmt(se_max)}"
+            f"{rp.fmt(float(best['mean']))} at {_point(best, axes)}. Paired by "
+            f"object, the nearest other setting ({_point(rival_pt, axes)}) is "
+            f"{rp.fmt(float(mean[rival]))} ± {rp.fmt(float(se[rival]))} worse"
             + (
-                "."
+                ", and every other setting is worse by more than two standard errors."
                 if resolved
-                else ", so these runs do not resolve a ranking of the settings."
+                else ": these runs do not tell the best settings apart."
             )
         )
     return lines
@@ -382,7 +402,7 @@ def grid_section(experiment: str):
             "",
             rp.to_markdown(per_set_table(g["per_set"], g["axes"], experiment)),
         ]
-        L += _best_lines(g["per_set"], g["axes"])
+        L += _best_lines(g["per_set"], g["per_object"], g["axes"])
         L.append("")
         return L
 

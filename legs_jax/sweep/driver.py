@@ -226,10 +226,10 @@ def _run(c: SweepConfig) -> Path:
 
 def _check_user_methods(plans: Sequence[ExperimentPlan], quiet: bool) -> None:
     """Run the conformance checks on every method from outside the package
-    (:mod:`legs_jax.core.methods.conformance`) before any chunk; a failure is a
+    (:mod:`legs_jax.runtime.conformance`) before any chunk; a failure is a
     one-line error."""
     from legs_jax.core import methods
-    from legs_jax.core.methods import conformance
+    from legs_jax.runtime import conformance
 
     names = {a.method for p in plans for a in p.arms}
     for name in sorted(n for n in names if not methods.builtin(n)):

@@ -35,14 +35,14 @@ CANDIDATES: dict[str, tuple[tuple[int, ...] | None, bool]] = {
 
 def _chunk_programs(plan: ExperimentPlan, c, n_dev: int):
     """(program key, rollouts, rollouts run with the mini-batch padding) of each
-    static group of a chunk, as :func:`legs_jax.core.engine.run` derives them."""
-    from legs_jax.core import engine
+    static group of a chunk, as :func:`legs_jax.runtime.run` derives them."""
+    from legs_jax import runtime
     from legs_jax.core.methods.base import Config
 
     arm = plan.arms[c.arm]
     m = plan_mod._method(arm.method)
     G, O, T = len(arm.grid), len(c.objects), len(c.trials)  # noqa: E741
-    n_pad = engine.table_rows(max(O * T, c.shape_of[0]))
+    n_pad = runtime.table_rows(max(O * T, c.shape_of[0]))
     groups: dict[tuple[int, ...], int] = {}
     for point in arm.grid:
         d = dict(point)
@@ -56,7 +56,7 @@ def _chunk_programs(plan: ExperimentPlan, c, n_dev: int):
         )
         rows = g * O * T * plan.rollouts
         like = max(rows, c.shape_of[1] * g // G)
-        per = engine.mini_batch_rows(m, cfg, like, n_dev, "cpu")
+        per = runtime.mini_batch_rows(m, cfg, like, n_dev, "cpu")
         every = plan.check_every if c.record_checks else None
         key = (m.name, cfg, every, c.record_active_set, n_pad, per)
         run = -(-rows // (per * n_dev)) * per * n_dev
