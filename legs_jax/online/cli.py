@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from legs_jax._cli import compile_cache_arg, out_arg, quiet_arg
+from legs_jax._cli import compile_cache_arg, quiet_arg
 from legs_jax._jax_cache import compile_cache
 from legs_jax.errors import ConfigError
 from legs_jax.online.errors import InputError, OrderError, StateError
@@ -76,6 +76,22 @@ def _cache_arg(p: argparse.ArgumentParser) -> None:
     compile_cache_arg(p, "a restarted session skips compiling")
 
 
+def _overwrite_arg(p: argparse.ArgumentParser, what: str) -> None:
+    p.add_argument("--overwrite", action="store_true", help=what)
+
+
+_FOLDER_OVERWRITE = (
+    "write the {} into a folder that holds files tracked by git (shipped results, "
+    "e.g. under results/online), replacing those of the same name; without it "
+    "such a folder is refused"
+)
+_TABLE_OVERWRITE = (
+    "replace a file tracked by git (a shipped result under results/online) "
+    "although this is not the configuration that produced it; without it that is "
+    "refused"
+)
+
+
 def _hparams(items, method: str) -> dict:
     """``--hparam`` values by name: integers for those ``method`` declares
     integer, floats for the others (the method checks names and ranges)."""
@@ -129,6 +145,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         help="a .npy 4x4 camera -> table transform (table plane z = 0, z up)",
     )
+    _overwrite_arg(p, _FOLDER_OVERWRITE.format("session"))
     _cache_arg(p)
 
     p = sub.add_parser(
@@ -157,6 +174,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--resume", action="store_true", help="continue the (killed) run in --out"
     )
+    _overwrite_arg(p, _FOLDER_OVERWRITE.format("run"))
     p.add_argument(
         "--problem",
         type=Path,
@@ -189,6 +207,8 @@ def build_parser() -> argparse.ArgumentParser:
     _session_args(p)
     _cache_arg(p)
 
+    from legs_jax.online.recognition_table import SHIPPED as SHIPPED_TABLE
+
     p = sub.add_parser(
         "recognition-table",
         help="pose recognition on simulated views",
@@ -204,13 +224,22 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="catalogue objects (default: the 13 Dex-Net objects)",
     )
-    p.add_argument("--views", type=int, default=60, help="views per object (60)")
-    p.add_argument("--seed", type=int, default=0, help="seed (0)")
-    out_arg(
-        p,
-        "results/online/recognition.md",
-        "markdown table (results/online/recognition.md)",
+    p.add_argument(
+        "--views",
+        type=int,
+        default=SHIPPED_TABLE["views"],
+        help=f"views per object ({SHIPPED_TABLE['views']})",
     )
+    p.add_argument("--seed", type=int, default=SHIPPED_TABLE["seed"], help="seed (0)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        help="the markdown table: a .md file, or a folder to write recognition.md "
+        "in (default: results/online/recognition.md, the shipped table, at the "
+        "configuration that produced it, the defaults; runs/online/recognition.md "
+        "at any other)",
+    )
+    _overwrite_arg(p, _TABLE_OVERWRITE)
     quiet_arg(p)
 
     p = sub.add_parser(
@@ -240,11 +269,15 @@ def build_parser() -> argparse.ArgumentParser:
         default=0,
         help="sessions with recognition and observed reservoirs (0)",
     )
-    out_arg(
-        p,
-        "results/online/agreement.md",
-        "markdown table; the figure goes next to it (.png)",
+    p.add_argument(
+        "--out",
+        type=Path,
+        help="the markdown table: a .md file, or a folder to write agreement.md in; "
+        "the figure goes next to it (.png) (default: results/online/agreement.md, "
+        "the shipped table, at the configuration that produced it, its Regenerate "
+        "line; runs/online/agreement.md at any other)",
     )
+    _overwrite_arg(p, _TABLE_OVERWRITE)
     quiet_arg(p)
     _cache_arg(p)
 
@@ -301,10 +334,12 @@ def _serve(args) -> int:
     import numpy as np
 
     from legs_jax.online.camera import default_camera_pose
+    from legs_jax.online.outputs import refuse_tracked
     from legs_jax.online.protocol import refuse, serve
     from legs_jax.online.session import Session
 
     try:
+        refuse_tracked([args.dir], args.overwrite)
         if (args.dir / "session.json").exists():
             session = Session.open(args.dir)
             _same_prior(session, args.prior)
@@ -377,6 +412,7 @@ def _same_prior(session, prior: str | None) -> None:
 
 def _simulate(args) -> int:
     from legs_jax.core import problem as problem_mod
+    from legs_jax.online.outputs import refuse_tracked
     from legs_jax.online.robot import World
     from legs_jax.online.simulate import Simulation
     from precompute.errors import PrecomputeError
@@ -390,6 +426,7 @@ def _simulate(args) -> int:
         raise InputError(
             "name the object: --object NAME|PROBLEM.npz|MESH, or --problem"
         )
+    refuse_tracked([args.out], args.overwrite)
     if not args.resume and (args.out / "session.json").exists():
         raise StateError(
             f"{args.out} already holds a session: add --resume to continue it, or "
