@@ -121,6 +121,7 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    from legs_jax.online.session import NO_SUCCESS_ATTEMPTS, ONE_POSE_STEPS
 
     p = sub.add_parser(
         "serve",
@@ -129,7 +130,9 @@ def build_parser() -> argparse.ArgumentParser:
         "per line (requests: observe, ask, tell, bound, status, quit). The "
         "session is created when DIR holds none (with the options below) and "
         "resumed otherwise. Every outcome is on disk before its response is "
-        "written.",
+        "written. Warnings go to stderr, one line each, once: a pose with no "
+        f"success in {NO_SUCCESS_ATTEMPTS} grasp attempts, and recognition that "
+        f"has seen one pose only after {ONE_POSE_STEPS} steps.",
     )
     p.add_argument("dir", type=Path, help="session folder")
     _session_args(p)
@@ -155,7 +158,12 @@ def build_parser() -> argparse.ArgumentParser:
         "of the object in a stable pose at a random place and yaw, grasps executed "
         "with the perturbed physics of precompute/, drops and topples with the "
         "object's landing and topple probabilities. Writes the session, "
-        "curve.jsonl and learning_curve.png to --out.",
+        "curve.jsonl and learning_curve.png to --out. Warnings go to stderr: "
+        "before the run, the poses of the problem file where no grasp can "
+        "succeed; "
+        f"during it, once each, a pose with no success in {NO_SUCCESS_ATTEMPTS} "
+        "grasp attempts and recognition that has seen one pose only after "
+        f"{ONE_POSE_STEPS} steps; after it, a run without any success.",
     )
     p.add_argument(
         "--object",
@@ -479,6 +487,14 @@ def _simulate(args) -> int:
                 world = World.from_mesh(name)
     except PrecomputeError as e:
         raise InputError(str(e)) from None
+    if pb is not None:
+        # the poses where no grasp can succeed (in some trial); a pose that a
+        # failure never leaves but a success can is learnable, and common (every
+        # pose of the shipped bar_clamp): no warning for that alone
+        flags = problem_mod.unlearnable_poses(pb)
+        dead = [f for f in flags if f["trials_without_success"]]
+        for line in problem_mod.describe_unlearnable(dead):
+            print(f"warning: the problem of {pb.name}: {line}", file=sys.stderr)
     sim = Simulation(
         args.out,
         world,
@@ -509,6 +525,13 @@ def _simulate(args) -> int:
             + (f", gap {last['gap']:.3f}" if "gap" in last else "")
         )
         print(f"wrote {args.out} (session, curve.jsonl, {fig.name})")
+        if sim.session.successes == 0:
+            print(
+                f"warning: no success in {sim.step} grasp attempts: the learning "
+                "curve and the bounds say nothing about the object's grasps; check "
+                "the object's size (--units), its problem file and its poses",
+                file=sys.stderr,
+            )
     finally:
         sim.close()
     return 0
