@@ -31,6 +31,12 @@ Commands:
   bench           time ask+tell, recognition of a 640x480 image, a new
                   pose's reservoir and the first requests of a restarted serve.
 
+recognition-table and agreement write the shipped tables in results/online/
+only when run at the configuration that produced them; any other run writes to
+runs/online/ (or --out) and says where. A file tracked by git (a shipped
+result) is otherwise never replaced, and serve and simulate refuse a folder
+holding one, unless given --overwrite.
+
 Run "python -m legs_jax.online COMMAND --help" for a command's options.
 """
 
