@@ -295,12 +295,15 @@ def winners(
     competitors: Sequence[str],
     tolerance: float = WIN_TOLERANCE,
 ) -> pd.DataFrame:
-    """Per object, which methods "win" (SPEC §5): a method wins an object when its
-    mean final gap is at most every other competitor's + ``tolerance``.
+    """Per object, which methods "win": a method wins an object when its mean final
+    gap is at most every other competitor's + ``tolerance``.
 
     Only default-configuration arms (variant "") compete. Objects lacking any
-    competitor are left out. Returns ``set, object`` and one bool column per
-    competitor.
+    competitor are left out. An object on which every competitor is within noise
+    of the best (each mean within two combined standard errors of the best one's,
+    ``gap_se`` of ``gaps``) has no winner: its column ``within_noise`` is True and
+    every competitor's False. Returns ``set, object``, one bool column per
+    competitor, and ``within_noise``.
     """
     base = gaps[(gaps["variant"] == "") & gaps["method"].isin(competitors)]
     wide = base.pivot_table(
@@ -309,12 +312,27 @@ def winners(
     wide = wide.dropna(axis=0, how="any")
     missing = [m for m in competitors if m not in wide.columns]
     if missing or wide.empty:
-        return pd.DataFrame(columns=["set", "object", *competitors])
+        return pd.DataFrame(columns=["set", "object", *competitors, "within_noise"])
     vals = wide[list(competitors)].to_numpy(np.float64)  # [O, M]
+    noise = np.zeros(len(wide), bool)
+    if "gap_se" in base.columns and len(competitors) > 1:
+        se = (
+            base.pivot_table(
+                index=["set", "object"], columns="method", values="gap_se", sort=False
+            )
+            .reindex(index=wide.index, columns=list(competitors))
+            .to_numpy(np.float64)
+        )
+        best = vals.argmin(axis=1)
+        rows = np.arange(len(vals))
+        combined = np.sqrt(se**2 + se[rows, best][:, None] ** 2)
+        close = vals - vals[rows, best][:, None] <= 2.0 * combined
+        noise = close.all(axis=1)  # a NaN standard error is never within noise
     out = wide.index.to_frame(index=False)
     for j, m in enumerate(competitors):
         others = np.delete(vals, j, axis=1).min(axis=1)
-        out[m] = vals[:, j] <= others + tolerance
+        out[m] = (vals[:, j] <= others + tolerance) & ~noise
+    out["within_noise"] = noise
     return out
 
 

@@ -354,7 +354,7 @@ def _results_section(ctx: Mapping) -> list[str]:
     smoke, unshipped = [], []
     for exp in _EXPERIMENTS:
         if not res.has(exp, "runs"):
-            lines.append(f"| {exp} | missing | — | — | — | — |")
+            lines.append(f"| {exp} | not run | — | — | — | — |")
             continue
         try:
             runs = res.table(exp, "runs")
@@ -473,10 +473,12 @@ def build_report(ctx: Mapping) -> str:
         "",
     ]
     L += _results_section(ctx)
-    sections = []
-    for name in _EXPERIMENTS:
-        mod = experiments.analysis(name)
-        sections += list(getattr(mod, "SECTIONS", ()))
+    sections = ctx.get("sections")
+    if sections is None:
+        sections = []
+        for name in _EXPERIMENTS:
+            mod = experiments.analysis(name)
+            sections += list(getattr(mod, "SECTIONS", ()))
     for _, section in sorted(sections, key=lambda x: x[0]):
         L += section(ctx)
     return "\n".join(L).rstrip("\n") + "\n"

@@ -345,6 +345,34 @@ def appendix_step(spec: rp.Appendix) -> Callable[[Run], None]:
     return step
 
 
+def plan_report(res: Results) -> tuple[list, list]:
+    """The steps and report sections for the experiments present in ``res``: each
+    experiment's own (its ``analysis.py``), or, for results that vary a
+    hyperparameter its declaration does not (a ``--grid`` sweep), the grid's
+    (:mod:`legs_jax.report.grid`). An experiment with no results contributes
+    nothing; the report lists it as not run."""
+    from legs_jax.report import grid
+
+    steps: list = []
+    sections: list = []
+    for name in EXPERIMENTS:
+        if not res.has(name, "runs"):
+            continue
+        mod = experiments.analysis(name)
+        try:
+            axes = grid.user_grid(res.table(name, "runs"), experiments.get(name).ARMS)
+        except MissingResults:
+            axes = []
+        if axes:
+            steps.append((f"grid: {name}", grid.grid_step(name, axes)))
+            own = [pos for pos, _ in getattr(mod, "SECTIONS", ())] or [99]
+            sections.append((min(own), grid.grid_section(name)))
+            continue
+        steps += list(getattr(mod, "STEPS", ()))
+        sections += list(getattr(mod, "SECTIONS", ()))
+    return steps, sections
+
+
 def generate(
     results: str | Path = "results",
     out: str | Path | None = None,
@@ -382,9 +410,8 @@ def generate(
         results, out, data, case_objects=case_objects, active_object=active_object
     )
     problems: list[str] = []
-    steps = []
-    for name in EXPERIMENTS:
-        steps += list(getattr(experiments.analysis(name), "STEPS", ()))
+    steps, sections = plan_report(res)
+    run.ctx["sections"] = sections
     from tqdm import tqdm
 
     bar = tqdm(steps, desc="figures", disable=not progress, leave=False)

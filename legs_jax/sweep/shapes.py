@@ -146,14 +146,11 @@ def plan_all() -> list[ExperimentPlan]:
     buckets, from the problem files' headers (a :class:`SweepError` names the
     missing ones)."""
     import experiments as declared
-    from legs_jax.sweep import cli
     from legs_jax.sweep import experiments as planning
+    from legs_jax.sweep.config import SweepConfig, validate
 
-    parser = cli.build_parser()
-    args = parser.parse_args(["--all", "--dry-run"])
-    cli._validate_args(parser, args)
+    args = validate(SweepConfig(all=True, dry_run=True))
     catalog = planning._catalog()
-    args.declared = declared.declared_methods()
     out = []
     for name in declared.EXPERIMENTS:
         plan = planning._experiment_plan(name, args, catalog, Path("results"))
