@@ -81,7 +81,7 @@ def check_arguments(module: str, args: list[str]) -> None:
 
         _parse(cli.build_parser(), args)
     elif module == "legs_jax.figures":
-        from legs_jax.report import figures
+        from legs_jax import figures
 
         _parse(figures.build_parser(), args)
     elif module == "legs_jax.online":
