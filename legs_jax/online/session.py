@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from pathlib import Path
 
 import numpy as np
 
@@ -530,7 +529,3 @@ def _pad(x: np.ndarray, K: int) -> np.ndarray:
     out = np.zeros((K,) + x.shape[1:], np.float32)
     out[: len(x)] = x[:K]
     return out
-
-
-def folder_of(path) -> Path:
-    return Path(path)
