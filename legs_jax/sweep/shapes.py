@@ -10,10 +10,9 @@ planner's cost model adds over running every object at its own pose count
 from __future__ import annotations
 
 import argparse
-import contextlib
 import dataclasses
 import sys
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -99,52 +98,35 @@ def padded_work(plans: Sequence[ExperimentPlan], n_dev: int) -> float:
     return padded / own if own else 1.0
 
 
-@contextlib.contextmanager
-def _buckets(choice: tuple[int, ...] | None) -> Iterator[None]:
-    """Plan with other pose buckets (None: powers of two; (): none)."""
-    old_buckets, old_fn = plan_mod.POSE_BUCKETS, plan_mod._pose_bucket
-    if choice is None:
-        plan_mod._pose_bucket = lambda p: 1 << max(0, (p - 1).bit_length())
-    elif not choice:
-        plan_mod._pose_bucket = lambda p: p
-    else:
-        plan_mod.POSE_BUCKETS = choice
-    try:
-        yield
-    finally:
-        plan_mod.POSE_BUCKETS, plan_mod._pose_bucket = old_buckets, old_fn
-
-
 def tradeoff(
     make_plans, n_dev: int = 2, candidates: dict | None = None
 ) -> list[dict[str, Any]]:
     """Programs and padded work of each bucket choice; ``make_plans()`` plans the
-    experiments under the current buckets."""
+    experiments, which are chunked again under each choice."""
     rows = []
     for label, (choice, grouped) in (candidates or CANDIDATES).items():
-        with _buckets(choice):
-            plans = make_plans()
+        plans = make_plans()
+        for plan in plans:
+            plan.chunks = plan_mod.plan_chunks(plan, buckets=choice)
             if not grouped:
-                for plan in plans:
-                    plan.chunks = [
-                        dataclasses.replace(c, shape_of=(0, 0)) for c in plan.chunks
-                    ]
-            keys = program_keys(plans, n_dev)
-            rows.append(
-                {
-                    "buckets": label,
-                    "programs": len(keys),
-                    "methods": len({k[0] for k in keys}),
-                    "work": padded_work(plans, n_dev),
-                }
-            )
+                plan.chunks = [
+                    dataclasses.replace(c, shape_of=(0, 0)) for c in plan.chunks
+                ]
+        keys = program_keys(plans, n_dev)
+        rows.append(
+            {
+                "buckets": label,
+                "programs": len(keys),
+                "methods": len({k[0] for k in keys}),
+                "work": padded_work(plans, n_dev),
+            }
+        )
     return rows
 
 
 def plan_all() -> list[ExperimentPlan]:
-    """The plans of ``python -m legs_jax.sweep --all`` under the current pose
-    buckets, from the problem files' headers (a :class:`SweepError` names the
-    missing ones)."""
+    """The plans of ``python -m legs_jax.sweep --all``, from the problem files'
+    headers (a :class:`SweepError` names the missing ones)."""
     import experiments as declared
     from legs_jax.sweep import experiments as planning
     from legs_jax.sweep.config import SweepConfig, validate
