@@ -1,4 +1,4 @@
-"""The paper's experiments, one folder each (SPEC §7): ``experiments/<name>/``.
+"""The paper's experiments, one folder each: ``experiments/<name>/``.
 
 ``sweep.py`` declares the experiment as data, a handful of constants: ``NAME``,
 ``DESCRIPTION``, ``ORDER`` (its place in ``--all``, the figures and the report),
@@ -25,9 +25,17 @@ import importlib
 from pathlib import Path
 from types import ModuleType, SimpleNamespace
 
-__all__ = ["DEFAULTS", "EXPERIMENTS", "analysis", "declared_methods", "get", "names"]
+__all__ = [
+    "DEFAULTS",
+    "EXPERIMENTS",
+    "analysis",
+    "declared_methods",
+    "for_report",
+    "get",
+    "names",
+]
 
-# The sizes of SPEC §7 (T x R = 10 x 10 runs of H = 3000 steps per object, the gap
+# The sizes (T x R = 10 x 10 runs of H = 3000 steps per object, the gap
 # every 10 steps, a check every 100) and nothing recorded beyond the runs.
 DEFAULTS = dict(
     TRIALS=10,
@@ -84,3 +92,23 @@ def analysis(name: str) -> ModuleType | None:
     if not (_HERE / name / "analysis.py").is_file():
         return None
     return importlib.import_module(f"{__name__}.{name}.analysis")
+
+
+def for_report() -> list:
+    """Every experiment as the report takes it
+    (:class:`legs_jax.report.figures.Experiment`: name, declared arms, the steps
+    and sections of its ``analysis.py``), in ``--all``'s order."""
+    from legs_jax.report.figures import Experiment
+
+    out = []
+    for name in EXPERIMENTS:
+        mod = analysis(name)
+        out.append(
+            Experiment(
+                name=name,
+                arms=tuple(get(name).ARMS),
+                steps=tuple(getattr(mod, "STEPS", ())),
+                sections=tuple(getattr(mod, "SECTIONS", ())),
+            )
+        )
+    return out

@@ -17,6 +17,7 @@ __all__ = [
     "RunResult",
     "load",
     "make_problem",
+    "methods",
     "run",
     "save",
     "stack",
@@ -25,8 +26,8 @@ __all__ = [
 _WHERE = {
     "ConfigError": "legs_jax.errors",
     "Method": "legs_jax.core.methods.base",
-    "RunResult": "legs_jax.core.engine",
-    "run": "legs_jax.core.engine",
+    "RunResult": "legs_jax.runtime.rollouts",
+    "run": "legs_jax.runtime.rollouts",
     "Problem": "legs_jax.core.problem",
     "ProblemBatch": "legs_jax.core.problem",
     "load": "legs_jax.core.problem",
@@ -36,7 +37,14 @@ _WHERE = {
 }
 
 
+# Subpackages reachable from the top: ``from legs_jax import methods`` is the
+# method registry, :mod:`legs_jax.core.methods`.
+_MODULES = {"methods": "legs_jax.core.methods"}
+
+
 def __getattr__(name: str) -> Any:
+    if name in _MODULES:
+        return importlib.import_module(_MODULES[name])
     if name in _WHERE:
         return getattr(importlib.import_module(_WHERE[name]), name)
     raise AttributeError(f"module 'legs_jax' has no attribute {name!r}")

@@ -11,7 +11,7 @@ of several repeats; compile time is reported apart.
   (:func:`legs_jax.core.sampling.beta_rows`), ``jax.random.beta`` and NumPy's
   ``Generator.beta``, on the same posterior-like shapes.
 - Rollout steps per second of BORGES (K=2000), LEGS (k=100) and TQL: the JAX engine
-  (:func:`legs_jax.core.engine.run`) against the NumPy reference implementation
+  (:func:`legs_jax.runtime.run`) against the NumPy reference implementation
   (:mod:`legs_jax.core.reference`) of the same method with the same settings, and the
   ratio.
 - The projected wall time of ``python -m legs_jax.sweep --all`` from those rates:
@@ -370,7 +370,7 @@ def _checked(method: str) -> bool:
 
 
 def bench_jax_engine(method: str, cfg: Settings, problem) -> dict[str, float]:
-    from legs_jax.core import engine
+    from legs_jax import runtime
     from legs_jax.core.problem import stack
 
     batch = stack([problem])
@@ -382,7 +382,7 @@ def bench_jax_engine(method: str, cfg: Settings, problem) -> dict[str, float]:
     steps = cfg.trials * per_trial * cfg.horizon
 
     def once():
-        engine.run(
+        runtime.run(
             batch,
             method,
             object_ids=[0],

@@ -1,4 +1,4 @@
-"""Tidy result tables, chunk files and manifests of a sweep (SPEC §5).
+"""Tidy result tables, chunk files and manifests of a sweep.
 
 A sweep writes one folder per experiment::
 

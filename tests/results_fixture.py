@@ -261,6 +261,24 @@ def _write_experiment(root: Path, name: str, arms, objects, *, checks, active, s
     res.atomic_write_json(manifest, d / "manifest.json")
 
 
+def write_experiment(
+    root: str | Path,
+    name: str,
+    arms,
+    objects,
+    *,
+    checks: bool = True,
+    active: bool = False,
+    seed: int = 0,
+) -> Path:
+    """One experiment folder ``root/name`` of the given arms (a grid: tuples of
+    values, zipped) on the given objects; returns ``root``."""
+    _write_experiment(
+        Path(root), name, arms, objects, checks=checks, active=active, seed=seed
+    )
+    return Path(root)
+
+
 def make_results(root: str | Path, seed: int = 0) -> Path:
     """Write the experiment folders under ``root``; returns ``root``."""
     root = Path(root)

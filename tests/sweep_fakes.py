@@ -1,4 +1,4 @@
-"""A stand-in for ``legs_jax.core.engine.run`` used by the sweep bookkeeping tests.
+"""A stand-in for ``legs_jax.runtime.run`` used by the sweep bookkeeping tests.
 
 It returns results of the engine's shapes whose values depend only on (seed,
 object id, trial, rollout, hyperparameters), as the real engine's do, so that

@@ -86,7 +86,7 @@ def test_projection_adds_up_the_sweep():
 
 
 def test_main_object_count():
-    # 13 Dex-Net adversarial + 49 EGAD evaluation objects (SPEC §6).
+    # 13 Dex-Net adversarial + 49 EGAD evaluation objects.
     assert bench._count_objects(("dexnet_adv", "egad_eval")) == 62
     assert bench._count_objects(("bar_clamp",)) == 1
 

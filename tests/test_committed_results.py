@@ -11,7 +11,10 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 
 import pytest
 
+import experiments
 from legs_jax.report import figures
+
+REPORTED = experiments.for_report()
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "results"
@@ -30,7 +33,7 @@ def _committed_tables() -> list[Path]:
 )
 def test_committed_tables_regenerate_exactly(tmp_path):
     out = tmp_path / "out"
-    figures.generate(RESULTS, out, ROOT / "data", progress=False)
+    figures.generate(RESULTS, out, ROOT / "data", experiments=REPORTED, progress=False)
     committed = _committed_tables()
     assert len(committed) >= 8
     for path in committed:

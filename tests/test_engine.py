@@ -1,4 +1,4 @@
-"""engine.run: validation, determinism, batching, devices, result layout, and the
+"""runtime.run: validation, determinism, batching, devices, result layout, and the
 behaviour the paper reports on a synthetic problem built for it."""
 
 from __future__ import annotations
@@ -13,10 +13,12 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from legs_jax.core import _programs, engine, keys
+from legs_jax import runtime
+from legs_jax.core import engine, keys
 from legs_jax.core import reference as ref
 from legs_jax.core.problem import Problem, stack
 from legs_jax.errors import ConfigError
+from legs_jax.runtime import programs, rollouts
 from legs_jax.synthetic import make_problem
 
 # ------------------------------------------------------------------- problems
@@ -69,12 +71,12 @@ def hidden():
 
 @pytest.fixture(scope="module")
 def legs_hidden(hidden):
-    return engine.run(hidden, "legs", batch_size=8, record_active_set=True, **HIDDEN)
+    return runtime.run(hidden, "legs", batch_size=8, record_active_set=True, **HIDDEN)
 
 
 @pytest.fixture(scope="module")
 def borges_hidden(hidden):
-    return engine.run(hidden, "borges_100", batch_size=8, check_every=None, **HIDDEN)
+    return runtime.run(hidden, "borges_100", batch_size=8, check_every=None, **HIDDEN)
 
 
 # ------------------------------------------------------------------ behaviour
@@ -84,7 +86,7 @@ def test_legs_escapes_a_bad_top_100(hidden, legs_hidden, borges_hidden):
     """When the top-100 by prior holds no good grasp, BORGES (K=100) cannot do
     better than the K100 upper bound, and LEGS, which refills its active set from
     the rest of the reservoir, ends with a lower gap (the paper, Section 5)."""
-    k100 = engine.run(hidden, "k100_ub", batch_size=8, check_every=None, **HIDDEN)
+    k100 = runtime.run(hidden, "k100_ub", batch_size=8, check_every=None, **HIDDEN)
     legs, borges = legs_hidden.final_gap.ravel(), borges_hidden.final_gap.ravel()
     bound = k100.final_gap.ravel()
     assert np.ptp(bound) == 0 and bound[0] > 0.8
@@ -120,11 +122,11 @@ def test_batch_split_and_offsets_are_bit_identical(hidden, borges_hidden):
     """8 rollouts in one batch, in two batches of 4, and as two runs of 4 joined by
     rollout_offset give bit-identical results."""
     kw = dict(HIDDEN, check_every=None)
-    two = engine.run(hidden, "borges_100", batch_size=4, **kw)
+    two = runtime.run(hidden, "borges_100", batch_size=4, **kw)
     kw = dict(kw, num_rollouts=4)
-    a = engine.run(hidden, "borges_100", batch_size=4, **kw)
-    b = engine.run(hidden, "borges_100", batch_size=4, rollout_offset=4, **kw)
-    for f in engine.RunResult._fields:
+    a = runtime.run(hidden, "borges_100", batch_size=4, **kw)
+    b = runtime.run(hidden, "borges_100", batch_size=4, rollout_offset=4, **kw)
+    for f in runtime.RunResult._fields:
         x = getattr(borges_hidden, f)
         if x is None:
             continue
@@ -138,11 +140,11 @@ def test_grid_is_a_batch_axis_and_compiles_once(hidden):
     """A zipped grid of 2 points equals two separate runs (same random numbers per
     rollout), and new hyperparameter values or seeds do not recompile."""
     kw = dict(HIDDEN, num_rollouts=4, batch_size=4, check_every=None)
-    grid = engine.run(hidden, "borges_100", hparams=dict(s=[1.0, 4.0]), **kw)
-    before = sum(engine.trace_counts().values())
-    one = engine.run(hidden, "borges_100", hparams=dict(s=4.0), **kw)
-    other = engine.run(hidden, "borges_100", hparams=dict(s=1.0), seed=3, **kw)
-    assert sum(engine.trace_counts().values()) == before  # no new trace
+    grid = runtime.run(hidden, "borges_100", hparams=dict(s=[1.0, 4.0]), **kw)
+    before = sum(runtime.trace_counts().values())
+    one = runtime.run(hidden, "borges_100", hparams=dict(s=4.0), **kw)
+    other = runtime.run(hidden, "borges_100", hparams=dict(s=1.0), seed=3, **kw)
+    assert sum(runtime.trace_counts().values()) == before  # no new trace
     assert grid.final_gap.shape == (2, 1, 1, 4)
     np.testing.assert_array_equal(grid.gap_curve[1:], one.gap_curve)
     np.testing.assert_array_equal(grid.successes[1:], one.successes)
@@ -152,17 +154,17 @@ def test_grid_is_a_batch_axis_and_compiles_once(hidden):
 _DEVICE_SCRIPT = textwrap.dedent(
     """
     import json, jax, numpy as np
-    from legs_jax.core import engine
+    from legs_jax import runtime
     from legs_jax.core.problem import stack
     from legs_jax.synthetic import make_problem
     assert len(jax.devices()) == 4, jax.devices()
     batch = stack([make_problem(2, num_poses=3, num_grasps=60, num_trials=2)])
     kw = dict(object_ids=[5], num_rollouts=4, horizon=120, check_every=40,
               hparams=dict(epsilon=0.3), progress=False)
-    one = engine.run(batch, "tql", devices=jax.devices()[:1], batch_size=8, **kw)
-    four = engine.run(batch, "tql", devices=jax.devices(), batch_size=2, **kw)
+    one = runtime.run(batch, "tql", devices=jax.devices()[:1], batch_size=8, **kw)
+    four = runtime.run(batch, "tql", devices=jax.devices(), batch_size=2, **kw)
     same = {f: bool(np.array_equal(getattr(one, f), getattr(four, f), equal_nan=True))
-            for f in engine.RunResult._fields if getattr(one, f) is not None}
+            for f in runtime.RunResult._fields if getattr(one, f) is not None}
     print(json.dumps(same))
     """
 )
@@ -171,7 +173,7 @@ _DEVICE_SCRIPT = textwrap.dedent(
 _KEPT_SCRIPT = textwrap.dedent(
     """
     import json, sys, jax, numpy as np
-    from legs_jax.core import engine
+    from legs_jax import runtime
     from legs_jax._jax_cache import compile_cache
     from legs_jax.core.problem import stack
     from legs_jax.synthetic import make_problem
@@ -184,11 +186,11 @@ _KEPT_SCRIPT = textwrap.dedent(
     batch = stack([make_problem(4, num_poses=3, num_grasps=150, num_trials=2)])
     out = {}
     for method in ("legs", "tql"):  # one with static hyperparameters, one without
-        r = engine.run(batch, method, object_ids=[7], num_rollouts=3, horizon=150,
+        r = runtime.run(batch, method, object_ids=[7], num_rollouts=3, horizon=150,
                        check_every=50, progress=False)
         out[method] = {f: np.asarray(getattr(r, f)).tolist()
                        for f in ("final_gap", "gap_curve", "check_p_lower")}
-    print(json.dumps({"results": out, "traces": len(engine.trace_counts()),
+    print(json.dumps({"results": out, "traces": len(runtime.trace_counts()),
                       "compiles": len(compiles)}))
     """
 )
@@ -245,9 +247,9 @@ def test_shape_buckets_are_bit_identical(method):
         hparams={"k": 20} if method == "legs" else None,
         progress=False,
     )
-    plain = engine.run(stack(probs), method, **kw)
-    padded = engine.run(stack(probs, num_poses=8), method, shape_of=(16, 40), **kw)
-    for f in engine.RunResult._fields:
+    plain = runtime.run(stack(probs), method, **kw)
+    padded = runtime.run(stack(probs, num_poses=8), method, shape_of=(16, 40), **kw)
+    for f in runtime.RunResult._fields:
         x = getattr(plain, f)
         if x is None:
             continue
@@ -266,7 +268,7 @@ def test_shape_buckets_are_bit_identical(method):
         np.testing.assert_array_equal(x, getattr(padded, f), err_msg=f)
     # the padded run really ran on padded tables: 16 (object, trial) rows of 8
     # poses (the plain one on 4 rows of 5)
-    shapes = {a[0] for k in _programs._EXECUTABLES for a in k[2]}
+    shapes = {a[0] for k in programs._EXECUTABLES for a in k[2]}
     assert (16, 8, 150) in shapes and (4, 5, 150) in shapes
 
 
@@ -333,7 +335,7 @@ def test_result_layout_and_constant_rows():
     pb = make_problem(4, num_poses=3, num_grasps=40, num_trials=3, name="b")
     batch = stack([pa, pb])
     calls = []
-    r = engine.run(
+    r = runtime.run(
         batch, "dexnet", object_ids=[1, 2], trials=[2, 0], num_rollouts=3,
         horizon=105, record_every=10, check_every=50, progress=calls.append,
         hparams=dict(s=[1.0, 3.0]),
@@ -353,7 +355,7 @@ def test_result_layout_and_constant_rows():
     np.testing.assert_array_equal(r.final_gap[0], r.final_gap[1])  # s: no choice
     assert calls and calls[-1] == 2 * 2 * 2 * 3
     # checks switched off
-    r0 = engine.run(
+    r0 = runtime.run(
         batch, "dexnet", object_ids=[1, 2], trials=[2, 0], num_rollouts=3,
         horizon=105, check_every=None, progress=False,
     )  # fmt: skip
@@ -451,17 +453,17 @@ def test_invalid_configuration_is_refused_before_computing(
     def boom(*a, **k):
         raise AssertionError("computation started")
 
-    monkeypatch.setattr(engine, "compiled", boom)
-    monkeypatch.setattr(engine, "make_tables", boom)
+    monkeypatch.setattr(rollouts, "compiled", boom)
+    monkeypatch.setattr(rollouts, "make_tables", boom)
     args = dict(object_ids=[1], num_rollouts=1, horizon=10)
     args.update(kwargs)
     with pytest.raises(ConfigError, match=match):
-        engine.run(_SMALL, method, **args)
+        runtime.run(_SMALL, method, **args)
 
 
 def test_invalid_batch_is_refused():
     with pytest.raises(ConfigError, match="ProblemBatch"):
-        engine.run(make_problem(0), "legs", object_ids=[1])
+        runtime.run(make_problem(0), "legs", object_ids=[1])
     assert issubclass(ConfigError, ValueError)
 
 
@@ -477,7 +479,7 @@ def test_invalid_batch_is_refused():
     ],
 )
 def test_batch_rows_split_work_evenly(rows, largest, quantum, want):
-    per = engine._batch_rows(rows, largest, quantum)
+    per = rollouts._batch_rows(rows, largest, quantum)
     assert per == want
     n_batches = -(-rows // per)
     assert per <= max(largest, quantum) and n_batches == -(-rows // largest)

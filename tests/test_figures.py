@@ -14,8 +14,12 @@ import pandas as pd
 import pytest
 from results_fixture import make_data, make_results
 
+import experiments
+from legs_jax import figures as figures_cli
 from legs_jax.report import document as rp
 from legs_jax.report import figures, render
+
+REPORTED = experiments.for_report()
 
 TABLES = [
     "table1",
@@ -38,8 +42,8 @@ def world(tmp_path_factory):
     results = make_results(root / "results")
     data = make_data(root / "data")
     out1, out2 = root / "out1", root / "out2"
-    w1, p1 = figures.generate(results, out1, data, progress=False)
-    w2, p2 = figures.generate(results, out2, data, progress=False)
+    w1, p1 = figures.generate(results, out1, data, experiments=REPORTED, progress=False)
+    w2, p2 = figures.generate(results, out2, data, experiments=REPORTED, progress=False)
     return dict(
         root=root, results=results, data=data, out1=out1, out2=out2, p1=p1, p2=p2
     )
@@ -298,7 +302,7 @@ def test_report_contents(world):
 
 
 def test_missing_results_directory(tmp_path, capsys):
-    rc = figures.main(["--results", str(tmp_path / "nope"), "--quiet"])
+    rc = figures_cli.main(["--results", str(tmp_path / "nope"), "--quiet"])
     err = capsys.readouterr().err
     assert rc == 2
     assert "nope" in err and "does not exist" in err
@@ -306,7 +310,7 @@ def test_missing_results_directory(tmp_path, capsys):
     # A folder without any experiment's results: an error, and nothing written.
     empty = tmp_path / "empty"
     empty.mkdir()
-    rc = figures.main(["--results", str(empty), "--quiet"])
+    rc = figures_cli.main(["--results", str(empty), "--quiet"])
     err = capsys.readouterr().err
     assert rc == 2 and "no results" in err and "main/runs.parquet" in err
     assert list(empty.iterdir()) == []
@@ -319,29 +323,32 @@ def test_missing_tables_are_named_and_the_rest_is_made(world, tmp_path, capsys):
     (results / "main" / "checks.parquet").unlink()
     (results / "prior_strength" / "runs.parquet").write_bytes(b"not parquet")
     out = tmp_path / "out"
-    rc = figures.main(
+    rc = figures_cli.main(
         ["--results", str(results), "--out", str(out), "--data", str(world["data"])]
         + ["--quiet"]
     )
     err = capsys.readouterr().err
-    assert rc == 1
+    assert rc == 1  # the unreadable table of an experiment that ran
     assert "Traceback" not in err
-    assert str(results / "early_stopping" / "checks.parquet") in err
-    assert str(results / "confidence" / "runs.parquet") in err
-    assert str(results / "case_study" / "active_set.parquet") in err
     assert f"{results / 'prior_strength' / 'runs.parquet'} cannot be read" in err
-    # What the results allow is still written; Fig. 3 falls back to main's curves.
+    # experiments never run are no errors: the report lists them as not run
+    for exp in ("early_stopping", "confidence", "case_study"):
+        assert str(results / exp) not in err
+    # What the results allow is still written.
     assert (out / "tables" / "table1.md").is_file()
     assert not (out / "tables" / "prior_strength.md").exists()
-    assert (out / "figures" / "fig3_case_study.png").is_file()
+    assert not (out / "figures" / "fig3_case_study.png").exists()
     assert not (out / "tables" / "confidence.md").exists()
     report = (out / "REPORT.md").read_text()
-    assert "confidence" in report and "missing" in report
+    assert "| confidence | not run |" in report
+    assert "| case_study | not run |" in report
+    # only the sections of experiments that ran
+    assert "## Table I" in report and "Fig. 3" not in report
 
 
 def test_help_explains_itself(capsys):
     with pytest.raises(SystemExit) as e:
-        figures.main(["--help"])
+        figures_cli.main(["--help"])
     assert e.value.code == 0
     out = " ".join(capsys.readouterr().out.split())
     assert "--results" in out and "--out" in out and "never reruns" in out

@@ -1,4 +1,4 @@
-"""The learned prior (issue 15): generated objects, depth images, crops, training,
+"""The learned prior: generated objects, depth images, crops, training,
 scoring, and that q never depends on the ground truth."""
 
 from __future__ import annotations

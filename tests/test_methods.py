@@ -1,4 +1,4 @@
-"""Conformance of every registered method (SPEC §4) and the LEGS pruning step.
+"""Conformance of every registered method and the LEGS pruning step.
 
 Every method runs under ``jit(vmap(...))`` on a problem with padded poses and
 grasps, invalid grasps and a real pose without any valid grasp: it never selects a
@@ -18,14 +18,15 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from legs_jax import results
+from legs_jax import results, runtime
 from legs_jax.core import engine, keys, methods
 from legs_jax.core import reference as ref
-from legs_jax.core.methods import _slots, conformance
+from legs_jax.core.methods import _slots
 from legs_jax.core.methods import legs as legs_method
 from legs_jax.core.methods.base import Config, Ctx, check_declaration, prune_mask
 from legs_jax.core.problem import stack
 from legs_jax.errors import ConfigError
+from legs_jax.runtime import conformance
 from legs_jax.synthetic import make_problem
 
 H = 300
@@ -85,14 +86,14 @@ def shared_run(name: str) -> dict[str, np.ndarray]:
     per-step trajectory (trials 0, 1 alternate); shared with the parity tests.
     Arrays have leading axes [G, B]."""
     tables, cfg = shared_setup()
-    fn = engine.compiled(name, cfg, **RUN, trajectory=True, grid=True, dirichlet=False)
+    fn = runtime.compiled(name, cfg, **RUN, trajectory=True, grid=True, dirichlet=False)
     ot = jnp.asarray(np.arange(B) % 2, jnp.int32)
     r = np.arange(G * B)
     ks = keys.rollout_keys(0, np.full(G * B, 3), r % 2, r)  # r % 2 == ot
     out = fn(tables, ot, ks.reshape(G, B), grid_hparams(name))
     assert fn._cache_size() == 1
     flat = jax.tree.map(lambda x: x.reshape((G * B,) + x.shape[2:]), out)
-    flat = jax.device_get(engine.compiled_checks()(ks, flat))  # shared by methods
+    flat = jax.device_get(runtime.compiled_checks()(ks, flat))  # shared by methods
     out = {k: np.asarray(v).reshape((G, B) + v.shape[1:]) for k, v in flat.items()}
     out["ot"] = np.broadcast_to(np.asarray(ot), (G, B))
     return out
@@ -156,10 +157,10 @@ def test_conformance_jit(name):
     """Every method under plain jit with odd hyperparameters, a second call with
     new values and keys reusing the compiled program."""
     tables, cfg = shared_setup()
-    fn = engine.compiled(name, cfg, 200, check_every=50, trajectory=True)
+    fn = runtime.compiled(name, cfg, 200, check_every=50, trajectory=True)
     b = 16
     ot = jnp.asarray(np.arange(b) % 2, jnp.int32)
-    before = sum(engine.trace_counts().values())
+    before = sum(runtime.trace_counts().values())
     m = methods.get(name)
     for i, vals in enumerate([ODD, m.defaults()]):
         ks = jax.random.split(jax.random.key(i), b)
@@ -169,7 +170,7 @@ def test_conformance_jit(name):
             k: np.asarray(v) for k, v in jax.device_get(fn(tables, ot, ks, hp)).items()
         }
         _check_rollouts(name, tables, o, np.asarray(ot), 200)
-    assert sum(engine.trace_counts().values()) - before <= 1
+    assert sum(runtime.trace_counts().values()) - before <= 1
     assert fn._cache_size() == 1
 
 
@@ -386,7 +387,7 @@ def test_prune_never_removes_best_or_untried():
 
 
 def _numpy_refill(gid, alpha, beta, attempted, nxt, removed, order, q, n_valid, hp):
-    """SPEC §4 refill of one pose, slot by slot, written plainly."""
+    """The LEGS refill of one pose, slot by slot, written plainly."""
     gid, alpha, beta, attempted = (
         gid.copy(),
         alpha.copy(),

@@ -520,7 +520,7 @@ def test_resume_refuses_a_run_of_another_kind(tmp_path, capsys):
 
 
 def test_protocol_refuses_unknown_fields_and_a_foreign_grasp(tmp_path):
-    """Issue 26, 7: a field the command does not take, or a tell that names
+    """A field the command does not take, or a tell that names
     another grasp than the pending one, is refused with a JSON error line and
     records nothing; the session goes on."""
     reqs = [
@@ -563,7 +563,7 @@ def test_protocol_refuses_unknown_fields_and_a_foreign_grasp(tmp_path):
 
 
 def test_a_second_serve_is_refused_as_a_json_line(tmp_path):
-    """Issue 26, 7: a second serve on a held session answers in JSON (the robot
+    """A second serve on a held session answers in JSON (the robot
     program reads JSON lines) and exits with status 2."""
     import os
     import subprocess
@@ -585,7 +585,7 @@ def test_a_second_serve_is_refused_as_a_json_line(tmp_path):
 
 
 def test_recognition_table_regenerate_line_names_the_objects():
-    """Issue 26, 9: the table's "Regenerate" command gives back the same table:
+    """The table's "Regenerate" command gives back the same table:
     it names --objects when they are not the default 13."""
     from legs_jax.online.recognition_table import DEXNET_OBJECTS, table_markdown
 

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from legs_jax import runtime
 from legs_jax.core import engine, keys
 from legs_jax.core import methods as methods_mod
 from legs_jax.core.methods.base import Config
@@ -44,7 +45,7 @@ def test_loop_follows_the_engine_step_for_step(setup, method):
     given_hp = {n: v for n, v in {"k": 20, "n": 25}.items() if n in m.defaults()}
     hp_vals = dict(m.defaults(), **given_hp)
     cfg = Config(num_poses=P, num_grasps=K, **{n: hp_vals[n] for n in m.static})
-    fn = engine.compiled(
+    fn = runtime.compiled(
         m, cfg, H, record_every=10, check_every=None, trajectory=True, dirichlet=False
     )
     ks = keys.rollout_keys(4, np.zeros(B, int), np.zeros(B, int), np.arange(B))

@@ -1,4 +1,4 @@
-"""The simulated robot's command line (issue 26): a resumed run keeps its own
+"""The simulated robot's command line: a resumed run keeps its own
 length and curve step, the learning curve has enough marked points, and a
 problem file or a mesh of the user's own runs as well as a catalogue name."""
 
@@ -34,7 +34,7 @@ def _curve(out: Path) -> list[dict]:
 def test_resume_keeps_the_runs_steps_and_curve_step(
     tmp_path, clamp_problem, monkeypatch, capsys
 ):
-    """Issue 26, 2: a run of 120 steps with a curve point every 30, killed at
+    """A run of 120 steps with a curve point every 30, killed at
     step 29 and resumed without --steps or --eval-every, ends at 120 with its
     points every 30 (not at the defaults 1000 and 100)."""
     out = tmp_path / "run"
@@ -64,7 +64,7 @@ def test_resume_keeps_the_runs_steps_and_curve_step(
 
 
 def test_learning_curve_has_marked_points(tmp_path, clamp_problem, monkeypatch):
-    """Issue 26, 9: the default curve step gives 50 points over a short run (not
+    """The default curve step gives 50 points over a short run (not
     4 points at every 100 steps), each drawn with a marker."""
     out = tmp_path / "run"
     drawn = {}
@@ -92,7 +92,7 @@ def _run(args, cwd):
 
 
 def test_a_users_mesh_is_skipped_when_current_and_simulated(tmp_path):
-    """Issue 26, 6: precompute --mesh skips an up-to-date file (unless --force),
+    """python -m precompute --mesh skips an up-to-date file (unless --force),
     and online simulate runs on that problem file or on the mesh itself."""
     work = tmp_path / "work"
     work.mkdir()

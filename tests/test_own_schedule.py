@@ -1,6 +1,6 @@
 """A method whose pruning runs on its own schedule is one file
 (``legs_per_pose.py``: LEGS pruning each pose after every n-th attempt made in
-it) and runs through ``engine.run`` with no change to the engine. Its
+it) and runs through ``runtime.run`` with no change to the engine. Its
 replacements are those of a plain NumPy replay of its own rollouts (the
 reference's LEGS, pruned on the pose's own count), and not those of LEGS's
 schedule replayed on the same rollouts."""
@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 from legs_per_pose import METHOD
 
-from legs_jax import synthetic
+from legs_jax import runtime, synthetic
 from legs_jax.core import engine, keys, problem
 from legs_jax.core.methods import legs
 from legs_jax.core.methods.base import Config, check_declaration
@@ -39,13 +39,13 @@ def test_method_with_its_own_pruning_schedule_runs_unchanged():
     check_declaration(METHOD)
     pb = synthetic.make_problem(seed=3, num_poses=3, num_grasps=120, num_trials=1)
     batch = problem.stack([pb])
-    run = engine.run(
+    run = runtime.run(
         batch, METHOD, object_ids=[OBJ], num_rollouts=R, horizon=H,
         hparams=HP, check_every=None, progress=False,
     )  # fmt: skip
     # the same rollouts, step by step, from the engine's own program
     cfg = Config(pb.num_poses, pb.num_grasps, k=HP["k"], n=HP["n"])
-    fn = engine.compiled(METHOD, cfg, H, check_every=None, trajectory=True)
+    fn = runtime.compiled(METHOD, cfg, H, check_every=None, trajectory=True)
     tables = jax.tree.map(jnp.asarray, engine.make_tables(batch, [0]))
     ks = keys.rollout_keys(0, np.full(R, OBJ), np.zeros(R, int), np.arange(R))
     hp = METHOD.traced_hparams(

@@ -135,7 +135,7 @@ def test_constant_rows_exact(name):
 
 def test_borges_100_never_below_k100_upper_bound():
     """BORGES (K=100) recommends within the top-100 by q, so at every recorded step
-    its gap is at least the K100 upper bound's (SPEC §4; the paper, Section 5)."""
+    its gap is at least the K100 upper bound's (the paper, Section 5)."""
     b, k = shared_run("borges_100"), shared_run("k100_ub")  # all 3 grid points
     for trial in (0, 1):
         bound = k["gaps"][k["ot"] == trial]

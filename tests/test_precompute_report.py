@@ -18,7 +18,7 @@ from precompute.cli import main as cli_main
 
 
 def _plain_gaps(pb):
-    """Dex-Net and K100-UB gaps by loops (SPEC §5), mean over trials."""
+    """Dex-Net and K100-UB gaps by loops, mean over trials."""
     T, P, _ = pb.robustness.shape
     dex, ub = np.zeros(T), np.zeros(T)
     for t in range(T):

@@ -327,17 +327,19 @@ def test_unlearnable_poses_names_dead_and_trapped_poses():
 
     pb = synthetic.make_problem(seed=0, num_poses=3, num_grasps=20, num_trials=2)
     assert unlearnable_poses(pb) == []
-    valid = pb.valid.copy()
-    valid[1, 1] = False  # pose 1: no grasp in trial 1 only
     topple = pb.topple.copy()
     topple[2] = 0.0
-    topple[2, 2] = 1.0  # pose 2 cannot be left by a failure
+    topple[2, 2] = 1.0  # pose 2: a failure never moves the object
+    # ... which alone is no defect: a success leaves the pose
+    assert unlearnable_poses(dataclasses.replace(pb, topple=topple)) == []
+    valid = pb.valid.copy()
+    valid[1, 1] = False  # pose 1: no grasp in trial 1 only
     flags = unlearnable_poses(dataclasses.replace(pb, valid=valid, topple=topple))
-    assert [f["pose"] for f in flags] == [1, 2]
-    assert flags[0]["trials_without_success"] == 1 and not flags[0]["cannot_leave"]
-    assert flags[0]["trapped_trials"] == 0
-    assert flags[1]["cannot_leave"] and flags[1]["trials_without_success"] == 0
-    assert flags[1]["landing"] == pytest.approx(float(pb.landing[2]))
+    assert [f["pose"] for f in flags] == [1]
+    assert flags[0]["trials_without_success"] == 1 and flags[0]["num_trials"] == 2
+    assert not flags[0]["cannot_leave"] and flags[0]["trapped_trials"] == 0
+    (line,) = describe_unlearnable(flags)
+    assert "pose 1" in line and "1 of 2" in line and "stuck" not in line
     # p = 0 everywhere counts like no valid grasp; with topple[s, s] = 1 it traps
     rob = pb.robustness.copy()
     rob[:, 2] = 0.0

@@ -1,5 +1,5 @@
 """The NumPy reference (legs_jax.core.reference): hand-computable cases, the rules of
-SPEC §2–§5, masks, determinism and validation."""
+the environment, methods and metrics, masks, determinism and validation."""
 
 from __future__ import annotations
 

@@ -20,6 +20,7 @@ from legs_jax.core import methods, problem
 from legs_jax.report.figures import Run
 from legs_jax.sweep import cli
 from legs_jax.sweep import experiments as planning
+from legs_jax.sweep.config import SweepConfig, validate
 from legs_jax.sweep.plan import SweepError
 
 DECL = experiments.get("regimes")
@@ -37,9 +38,11 @@ def test_discovered_with_every_method_and_generated_problems():
 
 def _plan(tmp_path, *extra):
     parser = cli.build_parser()
-    a = parser.parse_args(["--experiment", "regimes", *extra])
-    cli._validate_args(parser, a)
-    a.declared = experiments.declared_methods()
+    a = validate(
+        SweepConfig.from_namespace(
+            parser.parse_args(["--experiment", "regimes", *extra])
+        )
+    )
     return planning._experiment_plan("regimes", a, None, tmp_path)
 
 

@@ -33,7 +33,7 @@ def test_eb_posterior_is_the_prior_reweighted_by_the_grasps_likelihood():
         w = (r / r.sum(1, keepdims=True)).mean(0)
     want = w * lik[7]
     np.testing.assert_allclose(post, want / want.sum(), atol=2e-5)
-    # leave_out_rec=False (the previous round's fit): all 40 grasps shape G_s
+    # leave_out_rec=False (the earlier fit): all 40 grasps shape G_s
     post = stopping.eb_posterior(succ, fail, fit, rec, leave_out_rec=False)
     post = np.asarray(post)[0, 0]
     w = np.full(stopping.GRID, 1 / stopping.GRID)
@@ -203,7 +203,7 @@ def _synthetic_checks(n_problems: int, seed: int):
 @pytest.mark.parametrize("leave_out_rec", [False, True])
 def test_miss_rate_is_at_most_delta_stop_where_the_model_holds(leave_out_rec):
     """With G_s fitted without the recommended grasp's outcomes (shipped) and
-    with them (the previous round's fit, experiments/early_stopping/bound_design.py)."""
+    with them (the earlier fit, experiments/early_stopping/bound_design.py)."""
     n = 400
     counts, observed, succ, fail, rec, plug_in, truth = _synthetic_checks(n, 23)
     N = succ.shape[-1]

@@ -26,6 +26,7 @@ import experiments
 # ---------------------------------------------------------------------- helpers
 from legs_jax import results, sweep, synthetic
 from legs_jax.core import methods, problem
+from legs_jax.errors import ConfigError
 
 
 @pytest.fixture(autouse=True)
@@ -103,7 +104,7 @@ def test_experiment_modules_declare_valid_arms(name):
     arms = [sweep.make_arm(*a) for a in mod.ARMS]
     assert arms
     assert set(mod.CHECK_METHODS) <= {a.method for a in arms}
-    if not getattr(mod, "GENERATED", ()):  # the paper's sizes (SPEC §7)
+    if not getattr(mod, "GENERATED", ()):  # the paper's sizes
         assert mod.TRIALS == 10 and mod.ROLLOUTS == 10 and mod.HORIZON == 3000
     assert 1 <= len(mod.SMOKE_OBJECTS) <= 2
 
@@ -821,14 +822,14 @@ def test_projection_by_chunk_charges_each_bucket_its_rate_and_copies_nothing():
 
 
 def test_repeated_list_options_add_up():
-    """Issue 26, 1: a list option given twice keeps both (argparse's default
+    """A list option given twice keeps both (argparse's default
     would keep only the last and run another grid without a word)."""
     p = sweep.cli.build_parser()
     a = p.parse_args(
         ["--experiment", "main", "--methods", "legs", "--methods", "tql"]
         + ["--grid", "delta=0.05,0.1", "--grid", "s=1,2"]
     )
-    sweep.cli._validate_args(p, a)
+    a = sweep.config.validate(sweep.SweepConfig.from_namespace(a))
     assert a.methods == ["legs", "tql"]
     assert a.grid == {"delta": (0.05, 0.05, 0.1, 0.1), "s": (1.0, 2.0, 1.0, 2.0)}
     a = p.parse_args(["--experiment", "main", "--experiment", "confidence"])
@@ -841,8 +842,13 @@ def test_a_grid_axis_given_twice_is_refused(capsys):
         ["--experiment", "main", "--methods", "legs"]
         + ["--grid", "s=1", "--grid", "s=2"]
     )
+    with pytest.raises(ConfigError, match="s given twice"):
+        sweep.config.validate(sweep.SweepConfig.from_namespace(a))
     with pytest.raises(SystemExit) as e:
-        sweep.cli._validate_args(p, a)
+        sweep.main(
+            ["--experiment", "main", "--methods", "legs"]
+            + ["--grid", "s=1", "--grid", "s=2"]
+        )
     assert e.value.code == 2 and "s given twice" in capsys.readouterr().err
 
 
@@ -851,7 +857,7 @@ def test_a_grid_axis_given_twice_is_refused(capsys):
 def test_damaged_merged_table_is_merged_again(
     tmp_path, probs, fake_engine, capsys, damage, chunks
 ):
-    """Issue 26, 5: a merged table overwritten or lost is not reported complete:
+    """A merged table overwritten or lost is not reported complete:
     it is named in a warning and merged again from the chunks (or, where the
     chunks are gone, computed again); the tables then equal an undamaged run's."""
     base = ["--experiment", "confidence", "--problems", *probs, "--trials", "1"]
@@ -888,7 +894,7 @@ def test_damaged_merged_table_is_merged_again(
 def test_dry_run_with_overwrite_says_it_recomputes(
     tmp_path, probs, fake_engine, capsys
 ):
-    """Issue 26, 3: --dry-run --overwrite says what --overwrite does: every chunk
+    """--dry-run --overwrite says what --overwrite does: every chunk
     computed again, not "complete ... compute nothing"."""
     args = ["--experiment", "prior_strength", "--problems", probs[0]]
     args += ["--out", str(tmp_path), "--trials", "3"]
@@ -901,3 +907,106 @@ def test_dry_run_with_overwrite_says_it_recomputes(
     assert "--overwrite: all" in said and "180 rollouts to run" in said
     assert "deleting the results in it first" in said
     assert _files(tmp_path) == before
+
+
+@pytest.mark.parametrize(
+    "args, folder",
+    [
+        (["--all"], "results"),
+        (["--experiment", "main", "confidence"], "results"),
+        (
+            ["--experiment", "main", "--objects", "bar_clamp", "--methods", "legs,tql"],
+            "runs/main-bar_clamp-legs+tql",
+        ),
+        (
+            ["--experiment", "main", "--objects", "dexnet_adv", "--methods", "legs"]
+            + ["--grid", "delta=0.01,0.05", "s=0,1"],
+            "runs/main-dexnet_adv-legs-grid-delta+s",
+        ),
+        (["--experiment", "main", "--horizon", "500"], "runs/main-H500"),
+        (["--all", "--seed", "3"], "runs/all-seed3"),
+        (["--experiment", "main", "--problem-source", "built"], "runs/main-built"),
+        (["--smoke"], "runs/smoke"),
+        (
+            ["--experiment", "main", "--methods", "legs,my_pkg.mine:METHOD"],
+            "runs/main-legs+my_pkg.mine.METHOD",
+        ),
+    ],
+)
+def test_results_is_the_default_folder_of_the_declared_configuration_only(args, folder):
+    a = sweep.config.validate(
+        sweep.SweepConfig.from_namespace(sweep.cli.build_parser().parse_args(args))
+    )
+    assert sweep.config.default_out(a) == Path(folder)
+
+
+def test_a_long_folder_name_is_cut_and_keeps_its_identity():
+    names = [f"object_{i:02d}" for i in range(20)]
+    a = sweep.SweepConfig(experiment=["main"], objects=names)
+    out = sweep.config.default_out(a)
+    assert out.parent == Path("runs") and len(out.name) <= 80
+    b = sweep.SweepConfig(experiment=["main"], objects=[*names[:-1], "other"])
+    assert sweep.config.default_out(b) != out
+
+
+def test_a_users_sweep_writes_under_runs_and_never_touches_results(
+    tmp_path, probs, fake_engine, capsys, monkeypatch
+):
+    monkeypatch.chdir(tmp_path)
+    args = ["--experiment", "main", "--problems", probs[0], "--methods", "tql"]
+    code = sweep.main(
+        [*args, "--trials", "1", "--rollouts", "1", "--horizon", "50"]
+        + ["--compile-cache", "off"]
+    )
+    err = capsys.readouterr().err
+    assert code == 0
+    folder = Path("runs/main-alpha-tql-T1-R1-H50")
+    assert f"results go to {folder}/" in err
+    assert (tmp_path / folder / "main" / "runs.parquet").is_file()
+    assert not (tmp_path / "results").exists()
+
+
+def test_a_mesh_given_as_a_problem_names_the_command_that_builds_one(tmp_path, capsys):
+    mesh = tmp_path / "duck.obj"
+    mesh.write_text("v 0 0 0\n")
+    with pytest.raises(SystemExit) as e:
+        sweep.main(["--problems", str(mesh)])
+    err = capsys.readouterr().err
+    assert e.value.code == 2
+    assert "is a mesh" in err and f"python -m precompute --mesh {mesh}" in err
+    assert "pickle" not in err and "Traceback" not in err
+
+
+def test_a_sweep_runs_from_python(tmp_path, probs, fake_engine):
+    out = sweep.run(
+        problems=[probs[0]],
+        methods=["tql", "legs"],
+        trials=1,
+        rollouts=2,
+        horizon=50,
+        out=str(tmp_path / "mine"),
+        quiet=True,
+        compile_cache="off",
+    )
+    assert out == tmp_path / "mine"
+    runs = pd.read_parquet(out / "main" / "runs.parquet")
+    assert set(runs.method) == {"tql", "legs"} and len(runs) == 2 * 2
+    assert json.loads((out / "main" / "manifest.json").read_text())["status"] == (
+        "complete"
+    )
+    # the same configuration again: complete, nothing recomputed
+    calls = len(fake_engine)
+    again = sweep.run(
+        sweep.SweepConfig(problems=[probs[0]], methods=["tql", "legs"]),
+        trials=1,
+        rollouts=2,
+        horizon=50,
+        out=str(tmp_path / "mine"),
+        quiet=True,
+        compile_cache="off",
+    )
+    assert again == out and len(fake_engine) == calls
+    with pytest.raises(ConfigError, match="unknown method 'leg'.*did you mean legs"):
+        sweep.run(experiment=["main"], methods=["leg"])
+    with pytest.raises(ConfigError, match="nothing to run"):
+        sweep.run()

@@ -1,7 +1,7 @@
 """A method from the user's own module, outside the package, end to end: the
-README's example file, written to a temporary package, runs through the sweep
+example file of docs/methods.md, written to a temporary package, runs through the sweep
 CLI beside LEGS (conformance checks first), its rows carry its own
-hyperparameter column, and they equal what ``engine.run`` gives for the same
+hyperparameter column, and they equal what ``runtime.run`` gives for the same
 method named the same way. A module whose attribute is not a method, or whose
 method breaks the contract, is refused in one line."""
 
@@ -15,14 +15,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from legs_jax import sweep, synthetic
-from legs_jax.core import engine, keys, methods, problem
+from legs_jax import runtime, sweep, synthetic
+from legs_jax.core import keys, methods, problem
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _readme_method() -> str:
-    text = (ROOT / "README.md").read_text()
+def _docs_method() -> str:
+    text = (ROOT / "docs" / "methods.md").read_text()
     blocks = re.findall(r"```python\n(.*?)```", text, flags=re.S)
     (code,) = [b for b in blocks if "METHOD = Method(" in b]
     return code
@@ -33,7 +33,7 @@ def user_package(tmp_path, monkeypatch):
     pkg = tmp_path / "user_src" / "my_pkg"
     pkg.mkdir(parents=True)
     (pkg / "__init__.py").write_text("")
-    (pkg / "my_method.py").write_text(_readme_method())
+    (pkg / "my_method.py").write_text(_docs_method())
     (pkg / "broken.py").write_text("METHOD = 'not a method'\n")
     monkeypatch.syspath_prepend(str(tmp_path / "user_src"))
     # a my_pkg imported by an earlier test lives in another folder: forget it
@@ -63,7 +63,7 @@ def test_user_method_runs_through_the_sweep_cli(tmp_path, user_package, capsys):
     curves = pd.read_parquet(out / "main" / "curves.parquet")
     assert set(curves.method) == {"legs", "eps_greedy"}
     # the same rollouts from Python, the method named the same way
-    r = engine.run(
+    r = runtime.run(
         problem.stack([pb]),
         "my_pkg.my_method:METHOD",
         object_ids=[int(keys.object_id_from_name(pb.name))],
@@ -105,18 +105,18 @@ def test_a_bad_user_method_is_refused_in_one_line(tmp_path, user_package, capsys
 def test_a_method_selecting_an_out_of_range_grasp_is_refused_in_one_line(
     tmp_path, user_package, capsys
 ):
-    """Issue 26, 4: a grasp id past the tables (here 1999 of 160) is refused by
+    """A grasp id past the tables (here 1999 of 160) is refused by
     the conformance check in one line, as NaN estimates are, not an IndexError."""
     code = (
-        _readme_method()
+        _docs_method()
         .replace(
             "    return grasp, grasp, None",
             "    grasp = jnp.full_like(grasp, 1999)\n    return grasp, grasp, None",
         )
-        # a name of its own: the README's method may be registered already
+        # a name of its own: the docs' method may be registered already
         .replace('name="eps_greedy"', 'name="eps_far"')
     )
-    assert code != _readme_method()
+    assert code != _docs_method()
     (user_package / "far.py").write_text(code)
     pb = synthetic.make_problem(seed=4, num_poses=3, num_grasps=150, num_trials=1)
     path = tmp_path / "part.npz"

@@ -1,4 +1,4 @@
-"""Fig. 3: learning curves of every method on four objects (SPEC §7, "case study").
+"""Fig. 3: learning curves of every method on four objects ("case study").
 
 Climbing hold and C3 (where LEGS converges faster) and F6 and turbine housing (where
 it does not beat every baseline). Besides the learning curves, the active set of

@@ -8,9 +8,12 @@ from collections.abc import Mapping
 from legs_jax.report.document import Appendix, appendix_section
 from legs_jax.report.figures import appendix_step
 
+from .sweep import ARMS
+
 # The appendix's table, LEGS on the bar clamp: delta -> (mean, SE); s = 1.
 SPEC = Appendix(
     experiment="confidence",
+    method=ARMS[0][0],  # the one method of the sweep
     param="delta",
     name="confidence δ",
     caption="Sensitivity to the confidence parameter δ",

@@ -1,4 +1,4 @@
-"""Design study of our stopping bound (issue 23): how often it is a valid lower
+"""Design study of our stopping bound: how often it is a valid lower
 bound, and how far below the truth, with the empirical-Bayes prior fitted with
 and without the recommended grasp's own outcomes.
 
@@ -8,7 +8,7 @@ and without the recommended grasp's own outcomes.
 LEGS runs on every object of the set (the shipped problem files), T trials × R
 rollouts of H steps, checked every 100 steps; each check records our bound with
 the empirical-Bayes prior G_s fitted to every attempted grasp of the pose
-(``with-rec``, the design of the previous round) and, on the same rollouts and
+(``with-rec``, our earlier design) and, on the same rollouts and
 the same draws, with G_s fitted without the recommended grasp's own outcomes
 (``leave-out``, the shipped design since this study:
 :func:`legs_jax.core.stopping.eb_posterior`). A check is valid when the bound is
@@ -63,7 +63,8 @@ def study(set_name: str, trials: int, rollouts: int, horizon: int, progress: boo
     """Per object and variant: the checks (:func:`checks_frame`)."""
     from tqdm.auto import tqdm
 
-    from legs_jax.core import engine, problem
+    from legs_jax import runtime
+    from legs_jax.core import problem
 
     files = sorted((ROOT / "data" / "problemset" / set_name).glob("*.npz"))
     if not files:
@@ -73,7 +74,7 @@ def study(set_name: str, trials: int, rollouts: int, horizon: int, progress: boo
         pb = problem.load(path)
         batch = problem.stack([pb], num_trials=min(trials, pb.num_trials))
         for name, leave_out in VARIANTS.items():
-            r = engine.run(
+            r = runtime.run(
                 batch, "legs", object_ids=[i], num_rollouts=rollouts,
                 horizon=horizon, check_every=100, eb_leave_out_rec=leave_out,
                 progress=False,

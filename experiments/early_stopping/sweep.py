@@ -1,4 +1,4 @@
-"""Section 5.4 and Fig. 4: the Dirichlet early-stopping bound (SPEC §5, §7).
+"""Section 5.4 and Fig. 4: the Dirichlet early-stopping bound.
 
 LEGS on the Dex-Net adversarial set, checked every 100 steps up to H = 3000 with
 delta_stop = 0.05 and M = 3000 Dirichlet samples. Both lower bounds are recorded:

@@ -202,6 +202,7 @@ def per_object_table(
     keyed = gaps.set_index(["object", "method", "variant"])
     win_by_obj = win.set_index("object") if len(win) else None
     objects = gaps[["set", "object"]].drop_duplicates()
+    any_noise = False
     for s, o in zip(objects["set"], objects["object"], strict=True):
         row: list[Cell] = [an.SET_LABELS.get(s, s), o]
         winners = []
@@ -214,7 +215,17 @@ def per_object_table(
                 row.append(Num(float(r["gap_mean"]), float(r["gap_se"]), 3, bold))
             else:
                 row.append("—")
-        row.append(", ".join(short.get((m, ""), m) for m in winners) or "—")
+        noise = (
+            win_by_obj is not None
+            and o in win_by_obj.index
+            and bool(win_by_obj.loc[o, "within_noise"])
+        )
+        any_noise = any_noise or noise
+        row.append(
+            "none (all within noise)"
+            if noise
+            else ", ".join(short.get((m, ""), m) for m in winners) or "—"
+        )
         rows.append(row)
     notes = [
         "Mean ± standard error of the final gap over each object's T × R runs. "
@@ -222,6 +233,12 @@ def per_object_table(
         f"method's + {an.WIN_TOLERANCE}).",
         f"*Dex-Net: greedy on the {prior} prior (no online learning).",
     ]
+    if any_noise:
+        notes.append(
+            "No winner is named for an object on which every compared method's "
+            "mean is within two combined standard errors of the best one's: the "
+            "runs do not tell the methods apart there."
+        )
     return Table(
         header,
         rows,

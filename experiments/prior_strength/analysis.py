@@ -9,9 +9,12 @@ from collections.abc import Mapping
 from legs_jax.report.document import Appendix, appendix_section
 from legs_jax.report.figures import appendix_step
 
+from .sweep import ARMS
+
 # The appendix's table, LEGS on the bar clamp: s -> (mean, SE); delta = 0.07.
 SPEC = Appendix(
     experiment="prior_strength",
+    method=ARMS[0][0],  # the one method of the sweep
     param="s",
     name="prior strength s",
     caption="Sensitivity to prior strength s",

@@ -1,1 +1,1 @@
-"""When does LEGS win? A map of regimes (issue 27)."""
+"""When does LEGS win? A map of regimes."""

@@ -212,8 +212,8 @@ def _main_source_note(run: Run) -> str:
     if not files or sources == {"shipped"}:
         return ""
     return (
-        "their LEGS − BORGES (K=100) comes from `main`'s results, made from the "
-        "previous round's problem files, built on another machine; the features "
+        "their LEGS − BORGES (K=100) comes from `main`'s results, made from "
+        "problem files built on a machine, not the shipped set; the features "
         "are measured on the shipped problem set, and the two agree once `main` "
         "is recomputed on it"
     )

@@ -1,4 +1,4 @@
-"""When does LEGS win? A map of regimes on generated problems (issue 27).
+"""When does LEGS win? A map of regimes on generated problems.
 
 The paper closes by asking how the prior's quality and the distribution of grasp
 success probabilities affect LEGS's convergence. This experiment answers it on

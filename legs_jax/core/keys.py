@@ -1,4 +1,4 @@
-"""Where every random draw of a rollout comes from (SPEC §2).
+"""Where every random draw of a rollout comes from.
 
 A rollout is named by (seed, object, trial, rollout). Its key is
 

@@ -1,4 +1,4 @@
-"""The problem of one object (SPEC §1), its file format, and batches of problems.
+"""The problem of one object, its file format, and batches of problems.
 
 A problem is everything the bandit environment needs about one object: where a drop
 lands, where a failed grasp topples it, and for each of T reservoirs of K grasps per
@@ -60,7 +60,7 @@ class ProblemFileError(ValueError):
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Problem:
-    """One object after precompute (SPEC §1). All arrays are NumPy arrays.
+    """One object after precompute. All arrays are NumPy arrays.
 
     Padding beyond the object's own poses (``pose_valid`` False) and beyond its own
     grasps (``valid`` False) is allowed; it is never sampled and never counted.
@@ -154,24 +154,25 @@ _REQUIRED = tuple(f for f in _ARRAY_FIELDS if f != "pose_valid" and f not in _GE
 
 
 def unlearnable_poses(pb: Problem) -> list[dict[str, Any]]:
-    """The real poses no method can learn anything in, one dict each.
+    """The real poses in which no method can learn anything, one dict each.
 
     A pose is listed when in some trial none of its grasps can succeed (no valid
-    grasp, or every valid grasp has ground truth p = 0), or when a failed grasp
-    always leaves the object where it was (``topple[s, s] = 1``: the pose cannot be
-    left but by a success). A pose with both is a trap: a rollout that lands there
-    stays there for the rest of its horizon, whatever the method does. Keys:
-    ``pose``, ``landing`` (λ_s), ``trials_without_success`` (trials whose reservoir
-    of the pose has no grasp with p > 0), ``num_trials``, ``cannot_leave``,
-    ``trapped_trials`` (trials in which the pose is a trap).
+    grasp, or every valid grasp has ground truth p = 0): every attempt there fails.
+    When a failed grasp also always leaves the object where it was (``topple[s, s]
+    = 1``, common for flat poses) the pose cannot be left at all in those trials:
+    a rollout that lands there stays for the rest of its horizon, whatever the
+    method does. Keys: ``pose``, ``landing`` (λ_s), ``trials_without_success``
+    (trials whose reservoir of the pose has no grasp with p > 0), ``num_trials``,
+    ``cannot_leave`` (a failure never moves the object), ``trapped_trials``
+    (trials in which the pose cannot be left).
     """
     pstar = pb.p_star()  # [T, P]
     out = []
     for s in np.flatnonzero(pb.pose_valid):
         dead = pstar[:, s] <= 0.0
-        stuck = bool(pb.topple[s, s] >= 1.0 - _SUM_TOL)
-        if not dead.any() and not stuck:
+        if not dead.any():
             continue
+        stuck = bool(pb.topple[s, s] >= 1.0 - _SUM_TOL)
         out.append(
             {
                 "pose": int(s),
@@ -189,24 +190,17 @@ def describe_unlearnable(flags: Sequence[dict[str, Any]]) -> list[str]:
     """One sentence a pose for :func:`unlearnable_poses`'s list."""
     lines = []
     for f in flags:
-        what = []
-        if f["trials_without_success"]:
-            what.append(
-                f"no grasp that can succeed in {f['trials_without_success']} of "
-                f"{f['num_trials']} trial(s)"
+        line = (
+            f"pose {f['pose']} (landing probability {f['landing']:.3f}) has no grasp "
+            f"that can succeed in {f['trials_without_success']} of "
+            f"{f['num_trials']} trial(s)"
+        )
+        if f["trapped_trials"]:
+            line += (
+                " and a failed grasp never moves it: a rollout that lands there is "
+                "stuck for the rest of its horizon"
             )
-        if f["cannot_leave"]:
-            what.append("a failed grasp always leaves it where it is")
-        tail = (
-            "; a rollout that lands there is stuck for the rest of its horizon"
-            if f["trapped_trials"]
-            else ""
-        )
-        lines.append(
-            f"pose {f['pose']} (landing probability {f['landing']:.3f}): "
-            + " and ".join(what)
-            + tail
-        )
+        lines.append(line)
     return lines
 
 
@@ -621,7 +615,7 @@ def load(path: str | os.PathLike) -> Problem:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class ProblemBatch:
-    """Several problems padded to common T, P and K (SPEC §1: padding is masked).
+    """Several problems padded to common T, P and K (padding is masked).
 
     Only the arrays the bandit engine needs are kept; geometry stays in the
     individual :class:`Problem` objects.

@@ -1,4 +1,4 @@
-"""Plain NumPy reference implementation of every method and metric (SPEC §2–§5).
+"""Plain NumPy reference implementation of every method and metric.
 
 One rollout at a time, one step at a time, the way the original research code
 works. It is the oracle the JAX engine is tested against and the baseline of the
@@ -22,7 +22,7 @@ Random streams.
   inverse CDF of the landing row (after a success) or of the topple row of s
   (after a failure) at ``u_move[t-1]``.
 
-Order of one step t = 1..H (SPEC §2, §4).
+Order of one step t = 1..H.
   select a grasp of the current pose s -> reward -> posterior / Q update ->
   LEGS(-AS) pruning of pose s if ``t % n == 0`` -> transition to s' (a drop after
   a success, counted in c_{s'}; a topple after a failure) -> gap recorded if
@@ -38,14 +38,14 @@ A pose with no valid grasp.
   to the gap (p*_s = 0) and 0 to the performance; in the Dirichlet check its
   estimate p̂*_s is 0.
 
-Prior, posterior and rankings (SPEC §3).
+Prior, posterior and rankings.
   q is clipped to [0.01, 0.99] only inside the Beta parameters:
   α = prior_offset + s·q_c + S, β = prior_offset + s·(1 − q_c) + F. Every ranking
   "by q" (Dex-Net's choice, the top-100 and top-k sets, LEGS's refill order, the
   recommendation of an unvisited pose) and TQL's Q₀ use the raw q. Rankings are
   stable: equal q keep the lower grasp index first.
 
-Recommendation π_t(s) (SPEC §4).
+Recommendation π_t(s).
   Dex-Net: argmax q over all valid grasps. K100 upper bound: argmax p over the
   top-100 by q. TQL: argmax Q over the valid grasps (Q₀ = q, so a pose never
   grasped gets argmax q). Beta methods: argmax posterior mean over the method's
@@ -71,7 +71,7 @@ Constant rows.
   posterior of their candidates that never drives a choice and serves only the
   Dirichlet check.
 
-Dirichlet stopping check (SPEC §5).
+Dirichlet stopping check.
   c_s counts drops (the first one and every one after a success); observed poses
   are those landed in or toppled into so far. p̂*_s = max posterior mean (TQL: max
   Q) over the candidates of s; the *attempted* variant takes the max over the
@@ -268,7 +268,7 @@ def constant_policy(problem: Problem, method: Any, trial: int) -> np.ndarray:
 
 
 def constant_gap(problem: Problem, method: Any, trial: int) -> float:
-    """The constant gap of a constant row (Dex-Net, K100 upper bound; SPEC §5)."""
+    """The constant gap of a constant row (Dex-Net, K100 upper bound)."""
     return gap(problem, trial, constant_policy(problem, method, trial))
 
 
@@ -280,7 +280,7 @@ def legs_prune(
     delta: float,
     gamma: float,
 ) -> np.ndarray:
-    """The LEGS removal set B of one pose (SPEC §4), as a bool mask over arms.
+    """The LEGS removal set B of one pose, as a bool mask over arms.
 
     B = { i active : i attempted, i ≠ i*, X_{i,u} < X*_ℓ or X_{i,u} < γ }, with
     X_{i,ℓ} = PPF(Beta(α_i, β_i), δ), X_{i,u} = PPF(Beta(α_i, β_i), 1 − δ),
@@ -320,7 +320,7 @@ def dirichlet_lower_bound(
     num_samples: int,
     rng: np.random.Generator,
 ) -> float | np.ndarray:
-    """The δ-quantile of p' = Σ_{observed s} v_s λ'_s (SPEC §5, Section 4.4).
+    """The δ-quantile of p' = Σ_{observed s} v_s λ'_s (Section 4.4).
 
     λ' ~ Dir(c_s + 1 for each observed pose, 1 for one "unseen" bin whose value is
     0); unobserved poses get no bin. The quantile of the ``num_samples`` values of
@@ -351,7 +351,7 @@ def dirichlet_lower_bound(
 
 
 class _Environment:
-    """Drops and topples of one object (SPEC §2), by inverse CDF of a uniform."""
+    """Drops and topples of one object, by inverse CDF of a uniform."""
 
     def __init__(self, problem: Problem):
         landing = np.where(problem.pose_valid, problem.landing, 0.0)
@@ -468,7 +468,7 @@ def run_rollout(
     check_every: int,
     record_active_set: bool = False,
 ) -> dict[str, Any]:
-    """One rollout of ``method`` on one trial's reservoir (SPEC §2, §4, §5).
+    """One rollout of ``method`` on one trial's reservoir.
 
     Args:
       rng: consumed; split into environment, method and check streams.

@@ -123,7 +123,7 @@ def eb_posterior(
       forgotten: optional [B, P, CELLS] counts of forgotten grasps per (S, F)
         cell (:func:`forgotten_cells`); they enter the fit like the others.
       leave_out_rec: fit G_s without the recommended grasp's own outcomes (the
-        default; False: with them, the fit of the previous round, kept to
+        default; False: with them, the earlier fit, kept to
         compare in ``experiments/early_stopping/bound_design.py``). Fitted with
         them, G_s's upper tail is mostly the recommended grasp itself, and its
         posterior then uses the same outcomes twice (module docstring).

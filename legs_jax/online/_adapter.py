@@ -12,7 +12,7 @@ engine's key streams
 
 Hyperparameters are the method's own (``method.hparams``), validated by the
 registry's rules (:func:`legs_jax.core.methods.parse_grid`, as
-:func:`legs_jax.core.engine.run` does): the static ones set :class:`Config`, the
+:func:`legs_jax.runtime.run` does): the static ones set :class:`Config`, the
 traced ones are the method's ``traced_hparams`` NamedTuple with one row.
 
 Poses appear during a session. The tables hold a fixed capacity of P poses; a

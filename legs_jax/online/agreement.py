@@ -5,7 +5,7 @@ given and the problem's own reservoirs and prior (``given_poses``): the robot
 executes each asked grasp with the perturbed physics, drops or topples the object
 by λ and the topple matrix, and the gap Σ_s λ_s (p*_s − p[s, π_t(s)]) is read
 from the problem's table p every ``every`` steps. Engine:
-:func:`legs_jax.core.engine.run` on the same problem, trial, method and
+:func:`legs_jax.runtime.run` on the same problem, trial, method and
 hyperparameters (its rewards are draws from the table p).
 
 Agreement (the tolerance of the test and of the table written here): at every
@@ -29,14 +29,49 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from legs_jax.core import engine
+from legs_jax import runtime
 from legs_jax.core.problem import stack
+from legs_jax.online.outputs import is_results, out_file, refuse_tracked
 from legs_jax.online.robot import World
 from legs_jax.online.simulate import Simulation, save_figure
 
-__all__ = ["SLACK", "compare", "online_curves", "engine_curves"]
+__all__ = [
+    "SHIPPED",
+    "SLACK",
+    "compare",
+    "is_shipped",
+    "online_curves",
+    "engine_curves",
+]
 
 SLACK = 0.02
+
+# The configuration of the shipped table, results/online/agreement.md (its
+# "Regenerate" line): bar_clamp built with 2 trials of 1000 grasps, and these
+# arguments.
+SHIPPED = {
+    "object": "bar_clamp",
+    "trials": 2,
+    "grasps": 1000,
+    "method": "legs",
+    "rollouts": 24,
+    "engine_rollouts": 500,
+    "horizon": 400,
+    "every": 50,
+    "recognition_rollouts": 2,
+}
+
+
+def is_shipped(pb, args) -> bool:
+    """Whether problem ``pb`` and the command's ``args`` are those of the shipped
+    table (:data:`SHIPPED`)."""
+    have = {
+        "object": pb.name,
+        "trials": pb.num_trials,
+        "grasps": pb.num_grasps,
+        **{k: getattr(args, k) for k in SHIPPED if hasattr(args, k)},
+    }
+    return have == SHIPPED
 
 
 def online_curves(
@@ -68,7 +103,9 @@ def online_curves(
                 eval_every=every,
             )
             t0 = time.perf_counter()
-            sim.run(horizon, progress=False, on_step=progress)
+            # a rollout's warnings (a pose without a success) are not the
+            # comparison's: the engine's rollouts meet the same poses
+            sim.run(horizon, progress=False, on_step=progress, warn=_ignore)
             seconds.append((time.perf_counter() - t0) / horizon)
             curves.append([row["gap"] for row in sim.curve])
             poses.append(len(sim.session.grasps))
@@ -84,7 +121,7 @@ def online_curves(
 
 def engine_curves(problem, *, method, rollouts, horizon, every, trial=0, seed=0):
     """Gap curves [R, C] of the batched engine."""
-    res = engine.run(
+    res = runtime.run(
         stack([problem]),
         method,
         object_ids=[0],
@@ -120,6 +157,10 @@ def compare(online: dict, eng: dict) -> dict:
     }
 
 
+def _ignore(_warning: str) -> None:
+    pass
+
+
 def _fmt(x) -> str:
     return f"{x:.3f}"
 
@@ -138,6 +179,11 @@ def main(args) -> int:
     for name in ("rollouts", "horizon", "every", "recognition_rollouts"):
         if getattr(args, name) < (0 if name == "recognition_rollouts" else 1):
             raise InputError(f"--{name.replace('_', '-')} is too small")
+    shipped = is_shipped(pb, args)
+    out = out_file(args.out, "agreement.md", shipped)
+    refuse_tracked(
+        [out, out.with_suffix(".png")], args.overwrite or (shipped and is_results(out))
+    )
     total = (args.rollouts + args.recognition_rollouts) * args.horizon
     bar = None if args.quiet else tqdm(total=total, unit="grasp", desc="online")
     tick = None if bar is None else (lambda _sim: bar.update(1))
@@ -158,7 +204,6 @@ def main(args) -> int:
     if bar is not None:
         bar.close()
     c = compare(on, eng)
-    out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     lines = [
         f"# The online loop against the batched engine: {pb.name}, {args.method}",
@@ -174,7 +219,7 @@ def main(args) -> int:
         f"Online: {args.rollouts} sessions (seeds 0..{args.rollouts - 1}) against the "
         "simulated robot, true pose given, the problem's reservoirs and prior; "
         "outcomes from the perturbed physics. Engine: "
-        f"{args.engine_rollouts} rollouts of `engine.run` (outcomes drawn from the "
+        f"{args.engine_rollouts} rollouts of `runtime.run` (outcomes drawn from the "
         "table p). Gap Δ_t from the table p in both.",
         "",
         "Agreement: |difference of the means| ≤ 3·SE + "
@@ -232,6 +277,12 @@ def main(args) -> int:
     fig = _figure(c, rec, pb.name, args.method, out.with_suffix(".png"))
     print("\n".join(lines))
     print(f"wrote {out} and {fig}")
+    if args.out is None and not shipped:
+        print(
+            "(not results/online/agreement.md: the shipped table is bar_clamp built "
+            "with 2 trials of 1000 grasps and the arguments of its Regenerate line; "
+            "--out names another place)"
+        )
     return 0
 
 

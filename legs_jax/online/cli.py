@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from legs_jax._cli import compile_cache_arg, out_arg, quiet_arg
+from legs_jax._cli import compile_cache_arg, quiet_arg
 from legs_jax._jax_cache import compile_cache
 from legs_jax.errors import ConfigError
 from legs_jax.online.errors import InputError, OrderError, StateError
@@ -30,6 +30,12 @@ Commands:
   agreement       the simulated loop against the batched engine on a problem.
   bench           time ask+tell, recognition of a 640x480 image, a new
                   pose's reservoir and the first requests of a restarted serve.
+
+recognition-table and agreement write the shipped tables in results/online/
+only when run at the configuration that produced them; any other run writes to
+runs/online/ (or --out) and says where. A file tracked by git (a shipped
+result) is otherwise never replaced, and serve and simulate refuse a folder
+holding one, unless given --overwrite.
 
 Run "python -m legs_jax.online COMMAND --help" for a command's options.
 """
@@ -76,6 +82,22 @@ def _cache_arg(p: argparse.ArgumentParser) -> None:
     compile_cache_arg(p, "a restarted session skips compiling")
 
 
+def _overwrite_arg(p: argparse.ArgumentParser, what: str) -> None:
+    p.add_argument("--overwrite", action="store_true", help=what)
+
+
+_FOLDER_OVERWRITE = (
+    "write the {} into a folder that holds files tracked by git (shipped results, "
+    "e.g. under results/online), replacing those of the same name; without it "
+    "such a folder is refused"
+)
+_TABLE_OVERWRITE = (
+    "replace a file tracked by git (a shipped result under results/online) "
+    "although this is not the configuration that produced it; without it that is "
+    "refused"
+)
+
+
 def _hparams(items, method: str) -> dict:
     """``--hparam`` values by name: integers for those ``method`` declares
     integer, floats for the others (the method checks names and ranges)."""
@@ -105,6 +127,7 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    from legs_jax.online.session import NO_SUCCESS_ATTEMPTS, ONE_POSE_STEPS
 
     p = sub.add_parser(
         "serve",
@@ -113,7 +136,9 @@ def build_parser() -> argparse.ArgumentParser:
         "per line (requests: observe, ask, tell, bound, status, quit). The "
         "session is created when DIR holds none (with the options below) and "
         "resumed otherwise. Every outcome is on disk before its response is "
-        "written.",
+        "written. Warnings go to stderr, one line each, once: a pose with no "
+        f"success in {NO_SUCCESS_ATTEMPTS} grasp attempts, and recognition that "
+        f"has seen one pose only after {ONE_POSE_STEPS} steps.",
     )
     p.add_argument("dir", type=Path, help="session folder")
     _session_args(p)
@@ -129,6 +154,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         help="a .npy 4x4 camera -> table transform (table plane z = 0, z up)",
     )
+    _overwrite_arg(p, _FOLDER_OVERWRITE.format("session"))
     _cache_arg(p)
 
     p = sub.add_parser(
@@ -138,7 +164,12 @@ def build_parser() -> argparse.ArgumentParser:
         "of the object in a stable pose at a random place and yaw, grasps executed "
         "with the perturbed physics of precompute/, drops and topples with the "
         "object's landing and topple probabilities. Writes the session, "
-        "curve.jsonl and learning_curve.png to --out.",
+        "curve.jsonl and learning_curve.png to --out. Warnings go to stderr: "
+        "before the run, the poses of the problem file where no grasp can "
+        "succeed; "
+        f"during it, once each, a pose with no success in {NO_SUCCESS_ATTEMPTS} "
+        "grasp attempts and recognition that has seen one pose only after "
+        f"{ONE_POSE_STEPS} steps; after it, a run without any success.",
     )
     p.add_argument(
         "--object",
@@ -157,6 +188,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--resume", action="store_true", help="continue the (killed) run in --out"
     )
+    _overwrite_arg(p, _FOLDER_OVERWRITE.format("run"))
     p.add_argument(
         "--problem",
         type=Path,
@@ -189,6 +221,8 @@ def build_parser() -> argparse.ArgumentParser:
     _session_args(p)
     _cache_arg(p)
 
+    from legs_jax.online.recognition_table import SHIPPED as SHIPPED_TABLE
+
     p = sub.add_parser(
         "recognition-table",
         help="pose recognition on simulated views",
@@ -204,13 +238,22 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="catalogue objects (default: the 13 Dex-Net objects)",
     )
-    p.add_argument("--views", type=int, default=60, help="views per object (60)")
-    p.add_argument("--seed", type=int, default=0, help="seed (0)")
-    out_arg(
-        p,
-        "results/online/recognition.md",
-        "markdown table (results/online/recognition.md)",
+    p.add_argument(
+        "--views",
+        type=int,
+        default=SHIPPED_TABLE["views"],
+        help=f"views per object ({SHIPPED_TABLE['views']})",
     )
+    p.add_argument("--seed", type=int, default=SHIPPED_TABLE["seed"], help="seed (0)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        help="the markdown table: a .md file, or a folder to write recognition.md "
+        "in (default: results/online/recognition.md, the shipped table, at the "
+        "configuration that produced it, the defaults; runs/online/recognition.md "
+        "at any other)",
+    )
+    _overwrite_arg(p, _TABLE_OVERWRITE)
     quiet_arg(p)
 
     p = sub.add_parser(
@@ -240,11 +283,15 @@ def build_parser() -> argparse.ArgumentParser:
         default=0,
         help="sessions with recognition and observed reservoirs (0)",
     )
-    out_arg(
-        p,
-        "results/online/agreement.md",
-        "markdown table; the figure goes next to it (.png)",
+    p.add_argument(
+        "--out",
+        type=Path,
+        help="the markdown table: a .md file, or a folder to write agreement.md in; "
+        "the figure goes next to it (.png) (default: results/online/agreement.md, "
+        "the shipped table, at the configuration that produced it, its Regenerate "
+        "line; runs/online/agreement.md at any other)",
     )
+    _overwrite_arg(p, _TABLE_OVERWRITE)
     quiet_arg(p)
     _cache_arg(p)
 
@@ -301,10 +348,12 @@ def _serve(args) -> int:
     import numpy as np
 
     from legs_jax.online.camera import default_camera_pose
+    from legs_jax.online.outputs import refuse_tracked
     from legs_jax.online.protocol import refuse, serve
     from legs_jax.online.session import Session
 
     try:
+        refuse_tracked([args.dir], args.overwrite)
         if (args.dir / "session.json").exists():
             session = Session.open(args.dir)
             _same_prior(session, args.prior)
@@ -377,6 +426,7 @@ def _same_prior(session, prior: str | None) -> None:
 
 def _simulate(args) -> int:
     from legs_jax.core import problem as problem_mod
+    from legs_jax.online.outputs import refuse_tracked
     from legs_jax.online.robot import World
     from legs_jax.online.simulate import Simulation
     from precompute.errors import PrecomputeError
@@ -390,6 +440,7 @@ def _simulate(args) -> int:
         raise InputError(
             "name the object: --object NAME|PROBLEM.npz|MESH, or --problem"
         )
+    refuse_tracked([args.out], args.overwrite)
     if not args.resume and (args.out / "session.json").exists():
         raise StateError(
             f"{args.out} already holds a session: add --resume to continue it, or "
@@ -442,6 +493,14 @@ def _simulate(args) -> int:
                 world = World.from_mesh(name)
     except PrecomputeError as e:
         raise InputError(str(e)) from None
+    if pb is not None:
+        # the poses where no grasp can succeed (in some trial); a pose that a
+        # failure never leaves but a success can is learnable, and common (every
+        # pose of the shipped bar_clamp): no warning for that alone
+        flags = problem_mod.unlearnable_poses(pb)
+        dead = [f for f in flags if f["trials_without_success"]]
+        for line in problem_mod.describe_unlearnable(dead):
+            print(f"warning: the problem of {pb.name}: {line}", file=sys.stderr)
     sim = Simulation(
         args.out,
         world,
@@ -472,6 +531,13 @@ def _simulate(args) -> int:
             + (f", gap {last['gap']:.3f}" if "gap" in last else "")
         )
         print(f"wrote {args.out} (session, curve.jsonl, {fig.name})")
+        if sim.session.successes == 0:
+            print(
+                f"warning: no success in {sim.step} grasp attempts: the learning "
+                "curve and the bounds say nothing about the object's grasps; check "
+                "the object's size (--units), its problem file and its poses",
+                file=sys.stderr,
+            )
     finally:
         sim.close()
     return 0

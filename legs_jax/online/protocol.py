@@ -22,6 +22,12 @@ open (created, or resumed with every recorded outcome), or ``{"ok": false,
 "error": {...}}`` when it cannot be opened (another process holds it, a damaged
 folder), and the process exits with status 2.
 
+Warnings (a pose without a success after
+:data:`~legs_jax.online.session.NO_SUCCESS_ATTEMPTS` attempts, one pose only
+after :data:`~legs_jax.online.session.ONE_POSE_STEPS` steps of recognition) are
+written to stderr, one line each beginning ``warning:``, once per process; stdout
+carries the responses only.
+
 ``bound`` answers both stopping bounds: the paper's ``p_lower`` (and
 ``p_lower_attempted``) and ours ``p_lower_ours`` (:mod:`legs_jax.core.stopping`);
 with ``rho_min`` (the stopping threshold ρ_min) also ``stop`` (the paper's bound
@@ -168,10 +174,12 @@ def refuse(error: Exception, stdout=None) -> int:
     return 2
 
 
-def serve(session: Session, stdin=None, stdout=None) -> int:
-    """Answer requests until ``quit`` or the end of stdin."""
+def serve(session: Session, stdin=None, stdout=None, stderr=None) -> int:
+    """Answer requests until ``quit`` or the end of stdin; the session's warnings
+    go to ``stderr``, after the response that made them due."""
     stdin = stdin or sys.stdin
     stdout = stdout or sys.stdout
+    stderr = stderr or sys.stderr
 
     def send(obj) -> None:
         stdout.write(json.dumps(obj, default=_json_default) + "\n")
@@ -194,6 +202,9 @@ def serve(session: Session, stdin=None, stdout=None) -> int:
             continue
         resp = handle(session, req)
         send(resp)
+        for w in session.take_warnings():
+            stderr.write(f"warning: {w}\n")
+            stderr.flush()
         if resp["ok"] and isinstance(req, dict) and req.get("cmd") == "quit":
             break
     return 0

@@ -90,25 +90,29 @@ class World:
     def from_problem(cls, problem, mesh_path=None, problem_path=None) -> World:
         """The poses of a problem file and its object's mesh: ``mesh_path``, else
         the catalogue's mesh of that name, else the file the problem was built
-        from (its ``meta["mesh_file"]``, looked for beside the problem file and
-        from the current folder); the mesh must be the one the problem was built
-        from (its SHA-256)."""
+        from (see :func:`_find_mesh`); the mesh must be the one the problem was
+        built from (its SHA-256, when the problem records it)."""
         from pathlib import Path
 
         import precompute
         from precompute.errors import PrecomputeError
-        from precompute.mesh import load_mesh
+        from precompute.mesh import file_sha256, load_mesh
 
         meta = problem.meta
         units, fit = meta.get("units", "m"), meta.get("fit", "none")
+        want = meta.get("mesh_sha256")
         if mesh_path is None:
             try:
                 info = precompute.catalog.lookup(problem.name)
-                mesh_path, units, fit = info.mesh_path, info.units, info.fit
             except PrecomputeError:
+                info = None
+            if info is not None and (
+                want is None or file_sha256(info.mesh_path) == want
+            ):
+                mesh_path, units, fit = info.mesh_path, info.units, info.fit
+            else:  # a user's own mesh (perhaps named like a catalogue object)
                 mesh_path = _find_mesh(problem, problem_path)
         mesh = load_mesh(mesh_path, units, fit)
-        want = meta.get("mesh_sha256")
         if want is not None and mesh.sha256 != want:
             raise PrecomputeError(
                 f"{Path(mesh_path)} is not the mesh the problem of {problem.name} "
@@ -140,28 +144,102 @@ class World:
         return v.min(0), v.max(0)
 
 
+# how deep below each folder _find_mesh looks for a mesh by its name, and how
+# many entries it reads at most (a large tree is not searched through)
+_SEARCH_DEPTH = 2
+_SEARCH_ENTRIES = 20_000
+
+
 def _find_mesh(problem, problem_path=None):
     """The mesh file a problem file of the user's own (``precompute --mesh``) was
-    built from: its recorded name beside the problem file, two folders up (the
-    folder ``precompute --mesh`` ran from) or in the current folder."""
+    built from, by what its meta records: each recorded path of the mesh
+    (``mesh_file`` and any other ``mesh_*`` entry naming a mesh file), absolute
+    or relative to the problem file's folder, to the repository, to the folder
+    ``precompute --mesh`` ran from (two above the problem file) or to the current
+    folder; else a file of the recorded name in or up to two folders below those
+    folders. A candidate whose SHA-256 differs from the recorded one is passed
+    over while another matches."""
     from pathlib import Path
 
+    from precompute.catalog import data_dir
     from precompute.errors import PrecomputeError
+    from precompute.mesh import _MESH_SUFFIXES, file_sha256
 
-    recorded = problem.meta.get("mesh_file")
-    where = [Path.cwd()]
+    meta = problem.meta
+    recorded = [meta["mesh_file"]] if isinstance(meta.get("mesh_file"), str) else []
+    recorded += [
+        v
+        for k, v in sorted(meta.items())
+        if k.startswith("mesh")
+        and k != "mesh_file"
+        and isinstance(v, str)
+        and Path(v).suffix.lower() in _MESH_SUFFIXES
+    ]
+    bases, walk = [], [Path.cwd()]  # walk: the folders searched below
     if problem_path is not None:
         folder = Path(problem_path).resolve().parent
-        where = [folder, folder.parent.parent, *where]
-    if recorded:
-        for base in where:
-            for cand in (base / recorded, base / Path(recorded).name):
-                if cand.is_file():
-                    return cand
+        bases += [folder, folder.parent.parent]
+        walk.insert(0, folder.parent.parent)
+    bases += [data_dir().resolve().parent, Path.cwd()]
+    want = meta.get("mesh_sha256")
+
+    def candidates():
+        for rec in recorded:
+            path = Path(rec).expanduser()
+            if path.is_absolute():
+                yield path
+            else:
+                yield from (base / path for base in bases)
+        names = {Path(rec).name for rec in recorded}
+        yield from (base / name for base in bases for name in names)
+        for base in walk:
+            yield from _below(base, names)
+
+    seen, first = set(), None
+    for cand in candidates():
+        key = str(cand.resolve()) if cand.exists() else None
+        if key is None or key in seen or not cand.is_file():
+            continue
+        seen.add(key)
+        if want is None or file_sha256(cand) == want:
+            return cand
+        first = first or cand
+    if first is not None:
+        return first  # the caller says its SHA-256 differs
+    shown = recorded[0] if recorded else None
     raise PrecomputeError(
-        f"cannot find the mesh of {problem.name!r} (recorded as {recorded!r}): "
+        f"cannot find the mesh of {problem.name!r} (recorded as {shown!r}; looked "
+        "beside the problem file, where it was built and in the current folder): "
         "give it as --object MESH beside --problem"
     )
+
+
+def _below(base, names):
+    """Files named one of ``names`` in the folders below ``base`` (at most
+    ``_SEARCH_DEPTH`` deep, hidden folders skipped)."""
+    import os
+
+    budget = _SEARCH_ENTRIES
+    level = [base]
+    for _ in range(_SEARCH_DEPTH):
+        nxt = []
+        for folder in level:
+            try:
+                entries = list(os.scandir(folder))
+            except OSError:
+                continue
+            budget -= len(entries)
+            if budget < 0:
+                return
+            for e in entries:
+                if e.name.startswith(".") or not e.is_dir(follow_symlinks=False):
+                    continue
+                sub = folder / e.name
+                for name in names:
+                    if (sub / name).is_file():
+                        yield sub / name
+                nxt.append(sub)
+        level = nxt
 
 
 class SimRobot:

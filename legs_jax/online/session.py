@@ -10,7 +10,7 @@ A :class:`Session` runs one exploration method on one object in front of a robot
   through the recognised alignment into the table and camera frames.
 - :meth:`Session.tell` records the outcome: the method learns it, and it is in the
   log on disk before the call returns.
-- :meth:`Session.bound` is the Dirichlet lower bound p̂_ℓ of SPEC §5 on the success
+- :meth:`Session.bound` is the Dirichlet lower bound p̂_ℓ of the paper on the success
   rate of the current recommendations (the paper's, ``p_lower``) and ours
   (``p_lower_ours``, :mod:`legs_jax.core.stopping`, the one to stop on), and whether
   each exceeds ρ_min.
@@ -22,13 +22,18 @@ agreement check).
 
 Drop counts c_s follow the engine: the first landing and every landing after a
 success count; a topple (after a failure) only marks the pose observed.
+
+Warnings (:meth:`Session.take_warnings`, once per process each): a pose with no
+success in :data:`NO_SUCCESS_ATTEMPTS` attempts (its grasps may all fail: its
+recommendation and the bound then mean little), and, with recognition, one pose
+only after :data:`ONE_POSE_STEPS` steps (an object with a single stable pose, or
+recognition taking distinct poses for one).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from pathlib import Path
 
 import numpy as np
 
@@ -45,10 +50,20 @@ from legs_jax.online.camera import (
 from legs_jax.online.errors import InputError, OrderError, StateError
 from legs_jax.online.store import Store
 
-__all__ = ["Session", "DEFAULT_MAX_POSES", "DEFAULT_RESERVOIR"]
+__all__ = [
+    "Session",
+    "DEFAULT_MAX_POSES",
+    "DEFAULT_RESERVOIR",
+    "NO_SUCCESS_ATTEMPTS",
+    "ONE_POSE_STEPS",
+]
 
 DEFAULT_MAX_POSES = 24
 DEFAULT_RESERVOIR = 2000
+# grasp attempts in one pose without a success after which the session warns
+NO_SUCCESS_ATTEMPTS = 50
+# steps after which a session with recognition that has seen one pose only warns
+ONE_POSE_STEPS = 100
 SESSION_OBJECT_ID = 0  # rollout keys: key(seed) → object 0 → trial 0 → rollout 0
 
 
@@ -90,6 +105,10 @@ class Session:
         self._landing = True  # the next observation is a landing (counts)
         self._landing_pose: int | None = None
         self._pending: dict | None = None
+        self.attempts = np.zeros(self.max_poses, np.int64)  # per pose
+        self.pose_successes = np.zeros(self.max_poses, np.int64)
+        self._warned: set = set()
+        self._warnings: list[str] = []
         for r in store.records:
             self._apply(r, replay=True)
 
@@ -239,11 +258,49 @@ class Session:
                 self.step,
             )
             self.successes += bool(r["success"])
+            self.attempts[int(r["pose"])] += 1
+            self.pose_successes[int(r["pose"])] += bool(r["success"])
             self._landing = bool(r["success"])
             self._landing_pose = None
             self._pending = None
+            if not replay:
+                self._check(int(r["pose"]))
         else:
             raise StateError(f"{self.store.folder}: unknown log record type {kind!r}")
+
+    def _check(self, s: int) -> None:
+        """Queue the warnings that the outcome just told makes due (each once)."""
+        n = int(self.attempts[s])
+        if (
+            n >= NO_SUCCESS_ATTEMPTS
+            and self.pose_successes[s] == 0
+            and ("pose", s) not in self._warned
+        ):
+            self._warned.add(("pose", s))
+            self._warnings.append(
+                f"pose {s} has had no success in {n} grasp attempts (the session "
+                f"warns after {NO_SUCCESS_ATTEMPTS}): its grasps may all fail, and "
+                "its recommendation and the stopping bound then mean little"
+            )
+        if (
+            not self.given
+            and self.step >= ONE_POSE_STEPS
+            and len(self.grasps) == 1
+            and "one pose" not in self._warned
+        ):
+            self._warned.add("one pose")
+            self._warnings.append(
+                f"recognition has seen one pose only in {self.step} steps (the "
+                f"session warns after {ONE_POSE_STEPS}): either the object rests "
+                "in a single stable pose, or recognition takes distinct poses for "
+                "one, and the recommendation and the bound mix them"
+            )
+
+    def take_warnings(self) -> list[str]:
+        """The warnings due since the last call (each is given once per
+        process): see the module docstring."""
+        out, self._warnings = self._warnings, []
+        return out
 
     def _set_pose(self, s: int, arrays: dict) -> None:
         while len(self.grasps) <= s:
@@ -414,7 +471,7 @@ class Session:
         return {"step": self.step, "successes": self.successes}
 
     def bound(self, rho_min: float | None = None) -> dict:
-        """The Dirichlet lower bound p̂_ℓ (SPEC §5) at the current step, over all
+        """The paper's Dirichlet lower bound p̂_ℓ at the current step, over all
         candidates (and over attempted grasps only), and whether p̂_ℓ ≥ ρ_min
         (``stop``); beside it our bound (``p_lower_ours``, NaN for a method without
         per-grasp counts) and whether it is ≥ ρ_min (``stop_ours``)."""
@@ -472,7 +529,3 @@ def _pad(x: np.ndarray, K: int) -> np.ndarray:
     out = np.zeros((K,) + x.shape[1:], np.float32)
     out[: len(x)] = x[:K]
     return out
-
-
-def folder_of(path) -> Path:
-    return Path(path)

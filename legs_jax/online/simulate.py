@@ -20,7 +20,9 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -300,11 +302,18 @@ class Simulation:
             os.fsync(fh.fileno())
 
     def run(
-        self, steps: int, progress: bool = True, on_step=None, stop_at=None
+        self,
+        steps: int,
+        progress: bool = True,
+        on_step=None,
+        stop_at=None,
+        warn: Callable[[str], None] | None = None,
     ) -> None:
         """Run until the session has ``steps`` outcomes, or with ``stop_at`` (ρ_min)
         until an evaluation finds our bound ``p_lower_ours`` ≥ ρ_min (the row is
-        marked ``"stop": true`` and kept in ``self.stopped``)."""
+        marked ``"stop": true`` and kept in ``self.stopped``). The session's
+        warnings (:meth:`Session.take_warnings`) go to ``warn``, by default to
+        stderr as lines beginning ``warning:``."""
         _check_stop_at(stop_at)
         bar = None
         if progress:
@@ -321,6 +330,13 @@ class Simulation:
                 self._record(self.evaluate())
         while self.step < steps:
             self.run_step()
+            for w in self.session.take_warnings():
+                if warn is not None:
+                    warn(w)
+                elif bar is not None:
+                    bar.write(f"warning: {w}", file=sys.stderr)
+                else:
+                    print(f"warning: {w}", file=sys.stderr)
             if self.step % self.eval_every == 0 or self.step == steps:
                 row = self.evaluate()
                 stop = stop_at is not None and row["p_lower_ours"] >= stop_at

@@ -1,11 +1,11 @@
-"""Numbers of the paper's tables and figures from saved results (SPEC §5, §7).
+"""Numbers of the paper's tables and figures from saved results.
 
 Every function here is a pure function of the tidy tables a sweep writes
 (``runs``, ``curves``, ``checks``, ``active_set``, ``grasps``; see
 ``legs_jax.results``): no I/O, no plotting, no randomness. The paper's own numbers
 are kept with the experiment they belong to (``experiments/<name>/analysis.py``).
 
-Aggregation (SPEC §5): per object, the mean over its T x R runs; per data set, the
+Aggregation: per object, the mean over its T x R runs; per data set, the
 mean and standard error across objects. Standard errors are sample standard
 deviations (ddof = 1) divided by the square root of the count; NaN for one value.
 """
@@ -75,7 +75,7 @@ class Arms:
 
     @property
     def competitors(self) -> tuple[str, ...]:
-        """Methods compared for a "win" (SPEC §5): those of ``order`` the
+        """Methods compared for a "win": those of ``order`` the
         experiment declares, but not an oracle row (the K=100 upper bound);
         extra rows (Bayes-UCB, a user's method) are shown but do not compete, so
         the counts keep the paper's definition."""
@@ -133,7 +133,7 @@ SET_LABELS = {"dexnet_adv": "Dex-Net Adversarial", "egad_eval": "EGAD! evaluatio
 
 # Lower bounds of the stopping rule: name -> checks column. "all" is the paper's
 # formula (p-hat* over all candidates), "attempted" the variant over attempted
-# grasps only (SPEC §5), "ours" the Dirichlet bound on an empirical-Bayes posterior
+# grasps only, "ours" the Dirichlet bound on an empirical-Bayes posterior
 # of the recommended grasps (legs_jax.core.stopping).
 BOUNDS = {"all": "p_lower", "attempted": "p_lower_attempted", "ours": "p_lower_eb"}
 
@@ -295,12 +295,15 @@ def winners(
     competitors: Sequence[str],
     tolerance: float = WIN_TOLERANCE,
 ) -> pd.DataFrame:
-    """Per object, which methods "win" (SPEC §5): a method wins an object when its
-    mean final gap is at most every other competitor's + ``tolerance``.
+    """Per object, which methods "win": a method wins an object when its mean final
+    gap is at most every other competitor's + ``tolerance``.
 
     Only default-configuration arms (variant "") compete. Objects lacking any
-    competitor are left out. Returns ``set, object`` and one bool column per
-    competitor.
+    competitor are left out. An object on which every competitor is within noise
+    of the best (each mean within two combined standard errors of the best one's,
+    ``gap_se`` of ``gaps``) has no winner: its column ``within_noise`` is True and
+    every competitor's False. Returns ``set, object``, one bool column per
+    competitor, and ``within_noise``.
     """
     base = gaps[(gaps["variant"] == "") & gaps["method"].isin(competitors)]
     wide = base.pivot_table(
@@ -309,12 +312,27 @@ def winners(
     wide = wide.dropna(axis=0, how="any")
     missing = [m for m in competitors if m not in wide.columns]
     if missing or wide.empty:
-        return pd.DataFrame(columns=["set", "object", *competitors])
+        return pd.DataFrame(columns=["set", "object", *competitors, "within_noise"])
     vals = wide[list(competitors)].to_numpy(np.float64)  # [O, M]
+    noise = np.zeros(len(wide), bool)
+    if "gap_se" in base.columns and len(competitors) > 1:
+        se = (
+            base.pivot_table(
+                index=["set", "object"], columns="method", values="gap_se", sort=False
+            )
+            .reindex(index=wide.index, columns=list(competitors))
+            .to_numpy(np.float64)
+        )
+        best = vals.argmin(axis=1)
+        rows = np.arange(len(vals))
+        combined = np.sqrt(se**2 + se[rows, best][:, None] ** 2)
+        close = vals - vals[rows, best][:, None] <= 2.0 * combined
+        noise = close.all(axis=1)  # a NaN standard error is never within noise
     out = wide.index.to_frame(index=False)
     for j, m in enumerate(competitors):
         others = np.delete(vals, j, axis=1).min(axis=1)
-        out[m] = vals[:, j] <= others + tolerance
+        out[m] = (vals[:, j] <= others + tolerance) & ~noise
+    out["within_noise"] = noise
     return out
 
 
@@ -347,7 +365,7 @@ def _bound_columns(checks: pd.DataFrame) -> dict[str, str]:
 
 
 def bound_summary(checks: pd.DataFrame, by_object: bool = False) -> pd.DataFrame:
-    """Accuracy and tightness of the stopping bound (SPEC §5).
+    """Accuracy and tightness of the stopping bound.
 
     Accuracy: fraction of checks with lower bound <= true performance. Tightness:
     mean of (true performance - lower bound) over checks. Pooled over every check
@@ -381,7 +399,7 @@ def bound_summary(checks: pd.DataFrame, by_object: bool = False) -> pd.DataFrame
 def stopping_sensitivity(
     checks: pd.DataFrame, rho_min: Sequence[float], horizon: int
 ) -> pd.DataFrame:
-    """Early stopping against the threshold rho_min (Fig. 4, SPEC §5).
+    """Early stopping against the threshold rho_min (Fig. 4).
 
     Each run (object, trial, rollout) stops at its first check whose lower bound
     is >= rho_min. Accuracy is the fraction of stopped runs whose true performance

@@ -14,7 +14,6 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-import experiments
 from legs_jax._files import atomic_write
 
 __all__ = [
@@ -27,7 +26,6 @@ __all__ = [
     "build_report",
     "fmt",
     "horizon_text",
-    "paper_value",
     "pct",
     "tex_escape",
     "to_csv",
@@ -229,6 +227,7 @@ class Appendix:
     other: str
     paper_fixed: float  # the paper's value of ``other``
     paper: Mapping[float, tuple[float, float]]
+    method: str  # the one method of the experiment's sweep
 
     @property
     def paper_best(self) -> float:
@@ -317,18 +316,7 @@ def write_text(path, text: str) -> None:
     _write_text(path, text)
 
 
-def paper_value(mapping: Mapping, *keys):
-    """``mapping[k1][k2]...`` or None."""
-    cur = mapping
-    for k in keys:
-        if not isinstance(cur, Mapping) or k not in cur:
-            return None
-        cur = cur[k]
-    return cur
-
-
 # ==================================================================== report
-_EXPERIMENTS = experiments.EXPERIMENTS
 
 
 def fmt(x: float | None, d: int = 3) -> str:
@@ -352,9 +340,9 @@ def _results_section(ctx: Mapping) -> list[str]:
         "|:---|:---|---:|:---:|---:|:---|",
     ]
     smoke, unshipped = [], []
-    for exp in _EXPERIMENTS:
+    for exp in ctx["experiments"]:
         if not res.has(exp, "runs"):
-            lines.append(f"| {exp} | missing | — | — | — | — |")
+            lines.append(f"| {exp} | not run | — | — | — | — |")
             continue
         try:
             runs = res.table(exp, "runs")
@@ -410,7 +398,7 @@ def _results_section(ctx: Mapping) -> list[str]:
         ]
     incomplete = [
         e
-        for e in _EXPERIMENTS
+        for e in ctx["experiments"]
         if res.has(e, "runs")
         and res.manifest(e).get("status", "complete") != "complete"
     ]
@@ -458,8 +446,8 @@ def appendix_section(ctx: Mapping, spec: Appendix) -> list[str]:
 
 def build_report(ctx: Mapping) -> str:
     """REPORT.md from what ``legs_jax.report.figures.generate`` computed (``ctx``): the
-    results used, then the sections every experiment's ``analysis.py`` declares
-    (``SECTIONS``: position, function of ``ctx``), by position."""
+    results used (of the experiments ``ctx["experiments"]`` names), then the
+    sections ``ctx["sections"]`` (position, function of ``ctx``), by position."""
     from legs_jax.report import analysis as an
 
     L: list[str] = [
@@ -473,10 +461,6 @@ def build_report(ctx: Mapping) -> str:
         "",
     ]
     L += _results_section(ctx)
-    sections = []
-    for name in _EXPERIMENTS:
-        mod = experiments.analysis(name)
-        sections += list(getattr(mod, "SECTIONS", ()))
-    for _, section in sorted(sections, key=lambda x: x[0]):
+    for _, section in sorted(ctx["sections"], key=lambda x: x[0]):
         L += section(ctx)
     return "\n".join(L).rstrip("\n") + "\n"

@@ -1,8 +1,10 @@
 """The paper's tables and figures, and the reproduction report, from saved results.
 
-The outputs of each experiment are made by its own ``experiments/<name>/analysis.py``
-(``STEPS``, and ``SECTIONS`` of the report); this module holds the driver, the CLI,
-the result and object readers and the plotting helpers they share.
+The outputs of each experiment are made by its own analysis (``STEPS``, and
+``SECTIONS`` of the report), which the caller passes in (:class:`Experiment`;
+``python -m legs_jax.figures`` passes the paper's, from ``experiments/``); this
+module holds the driver (:func:`generate`), the result and object readers and the
+plotting helpers they share.
 
 ``python -m legs_jax.figures [--results DIR] [--out DIR] [--data DIR]`` reads the
 tidy tables a sweep wrote under ``DIR/<experiment>/`` and never reruns anything.
@@ -20,23 +22,23 @@ It writes, under ``--out`` (default: the results folder):
 
 Objects are drawn from ``<data>/meshes/<set>/<name>.obj`` in the stable pose of
 ``<data>/problems/<set>/<name>.npz``; what is missing is said in the figure.
-An output whose results are missing is skipped with a message naming the missing
-file, and the exit status is then 1.
+An experiment without results is listed in the report as not run; an output of
+an experiment that ran whose results are missing is skipped with a message naming
+the missing file, and the exit status is then 1. A folder whose results vary a
+hyperparameter the experiment does not declare (a ``--grid`` sweep) is reported
+against the grid's axes (:mod:`legs_jax.report.grid`).
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
-import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import pandas as pd
 
-import experiments
 from legs_jax.report import analysis as an
 from legs_jax.report import document as rp
 
@@ -47,8 +49,8 @@ __all__ = [
     "Run",
     "appendix_step",
     "appendix_tables",
+    "Experiment",
     "generate",
-    "main",
     "method_style",
     "note_on_axes",
     "pyplot",
@@ -57,17 +59,20 @@ __all__ = [
     "write_csv",
 ]
 
-_PROG = "python -m legs_jax.figures"
-_DESCRIPTION = (
-    "Regenerate the paper's tables and figures from saved sweep results "
-    "(never reruns a sweep): Table I with win counts, per-object gaps, "
-    "Fig. 3 case study, Fig. 4 early stopping, the two appendix tables, "
-    "the active-set evolution of one LEGS rollout, and REPORT.md with "
-    "every number beside the paper's. Outputs whose results are missing "
-    "are skipped with a message naming the missing file (exit status 1)."
-)
 
-EXPERIMENTS = experiments.EXPERIMENTS
+class Experiment(NamedTuple):
+    """What the report needs of one experiment: its ``name``, its declared
+    ``arms`` (method, variant, hyperparameters; a tuple value is a declared grid),
+    and its analysis: ``steps`` (label, function of a :class:`Run`) that write
+    its tables and figures, and ``sections`` (position, function of the report's
+    context) that write its parts of REPORT.md. The caller passes them in, in the
+    report's order (``experiments.for_report()`` gives the paper's)."""
+
+    name: str
+    arms: tuple = ()
+    steps: tuple = ()
+    sections: tuple = ()
+
 
 _PNG_META = {"Software": None}
 _DPI = 150
@@ -152,9 +157,10 @@ class ObjectData:
     """Meshes and problem files of the objects (for drawing), with the reason
     when one is unavailable."""
 
-    def __init__(self, root: str | Path, results: Results):
+    def __init__(self, root: str | Path, results: Results, order: Sequence[str] = ()):
         self.root = Path(root)
         self.results = results
+        self.order = tuple(order)  # experiments whose problem files come first
         self._problems: dict[str, Any] = {}
         self._meshes: dict[str, Any] = {}
 
@@ -167,7 +173,7 @@ class ObjectData:
             # the file the results were made from first, then the shipped set's,
             # then a build's
             candidates = []
-            for exp in EXPERIMENTS:
+            for exp in self.order:
                 if self.results.has(exp, "objects"):
                     obj = self.results.table(exp, "objects")
                     if "problem_file" in obj.columns:
@@ -285,8 +291,7 @@ def appendix_tables(
 ) -> tuple[list[Path], dict[str, Any]]:
     """The table of an appendix experiment (``spec``): ``<experiment>.md``,
     ``.tex`` and ``.csv``."""
-    experiment, param = spec.experiment, spec.param
-    method = experiments.get(experiment).ARMS[0][0]  # the one method of the sweep
+    experiment, param, method = spec.experiment, spec.param, spec.method
     runs = an.select_arm(res.table(experiment, "runs"), method, "", vary=(param,))
     if runs.empty:
         raise MissingResults(f"{res.path(experiment, 'runs')} has no LEGS runs")
@@ -318,14 +323,20 @@ class Run:
 
     @classmethod
     def start(
-        cls, results: str | Path, out: str | Path, data: str | Path, **options: Any
+        cls,
+        results: str | Path,
+        out: str | Path,
+        data: str | Path,
+        order: Sequence[str] = (),
+        **options: Any,
     ) -> Run:
-        """A run that reads ``results`` and the objects under ``data`` and writes
-        into ``out/tables`` and ``out/figures``; nothing written yet."""
+        """A run that reads ``results`` and the objects under ``data`` (problem
+        files first from the experiments named in ``order``) and writes into
+        ``out/tables`` and ``out/figures``; nothing written yet."""
         res, out = Results(results), Path(out)
         return cls(
             res=res,
-            objects=ObjectData(data, res),
+            objects=ObjectData(data, res, order),
             tables=out / "tables",
             figures=out / "figures",
             ctx={"results": res, "out": out},
@@ -345,11 +356,39 @@ def appendix_step(spec: rp.Appendix) -> Callable[[Run], None]:
     return step
 
 
+def plan_report(res: Results, reported: Sequence[Experiment]) -> tuple[list, list]:
+    """The steps and report sections for the experiments present in ``res``: each
+    experiment's own, or, for results that vary a hyperparameter its declaration
+    does not (a ``--grid`` sweep), the grid's (:mod:`legs_jax.report.grid`). An
+    experiment with no results contributes nothing; the report lists it as not
+    run."""
+    from legs_jax.report import grid
+
+    steps: list = []
+    sections: list = []
+    for e in reported:
+        if not res.has(e.name, "runs"):
+            continue
+        try:
+            axes = grid.user_grid(res.table(e.name, "runs"), e.arms)
+        except MissingResults:
+            axes = []
+        if axes:
+            steps.append((f"grid: {e.name}", grid.grid_step(e.name, axes)))
+            own = [pos for pos, _ in e.sections] or [99]
+            sections.append((min(own), grid.grid_section(e.name)))
+            continue
+        steps += list(e.steps)
+        sections += list(e.sections)
+    return steps, sections
+
+
 def generate(
     results: str | Path = "results",
     out: str | Path | None = None,
     data: str | Path = "data",
     *,
+    experiments: Sequence[Experiment],
     case_objects: Sequence[str] | None = None,
     active_object: str | None = None,
     progress: bool = True,
@@ -370,21 +409,27 @@ def generate(
             "legs_jax.sweep --all` first, or pass --results)"
         )
     res = Results(results)
-    if not any(res.has(e, "runs") for e in EXPERIMENTS):
+    names = [e.name for e in experiments]
+    if not any(res.has(e, "runs") for e in names):
         raise MissingResults(
             f"no results in {results}: none of "
-            + ", ".join(f"{e}/runs.parquet" for e in EXPERIMENTS)
+            + ", ".join(f"{e}/runs.parquet" for e in names)
             + " exists (run `python -m legs_jax.sweep --all` first, or pass "
             "--results)"
         )
     out = Path(out) if out is not None else results
     run = Run.start(
-        results, out, data, case_objects=case_objects, active_object=active_object
+        results,
+        out,
+        data,
+        names,
+        case_objects=case_objects,
+        active_object=active_object,
     )
     problems: list[str] = []
-    steps = []
-    for name in EXPERIMENTS:
-        steps += list(getattr(experiments.analysis(name), "STEPS", ()))
+    steps, sections = plan_report(res, experiments)
+    run.ctx["sections"] = sections
+    run.ctx["experiments"] = names
     from tqdm import tqdm
 
     bar = tqdm(steps, desc="figures", disable=not progress, leave=False)
@@ -407,75 +452,3 @@ def generate(
     rp.write_text(report_path, rp.build_report(run.ctx))
     run.written.append(report_path)
     return run.written, problems
-
-
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=_PROG, description=_DESCRIPTION)
-    p.add_argument(
-        "--results",
-        default="results",
-        metavar="DIR",
-        help="folder holding <experiment>/runs.parquet etc. (default: results)",
-    )
-    p.add_argument(
-        "--out",
-        default=None,
-        metavar="DIR",
-        help="write tables/, figures/ and REPORT.md here (default: the results folder)",
-    )
-    p.add_argument(
-        "--data",
-        default="data",
-        metavar="DIR",
-        help="folder with meshes/<set>/<name>.obj and problems/<set>/<name>.npz "
-        "for drawing objects (default: data)",
-    )
-    p.add_argument(
-        "--case-objects",
-        nargs="+",
-        action="extend",
-        default=None,
-        metavar="NAME",
-        help="objects of Fig. 3 (default: the case_study experiment's objects)",
-    )
-    p.add_argument(
-        "--active-object",
-        default=None,
-        metavar="NAME",
-        help="object whose LEGS active set is drawn (default: the case-study "
-        "object whose active set changes most)",
-    )
-    p.add_argument("--quiet", action="store_true", help="no progress bar or listing")
-    p.add_argument(
-        "--debug",
-        action="store_true",
-        help="stop with a traceback when an output fails unexpectedly",
-    )
-    return p
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    a = build_parser().parse_args(argv)
-    try:
-        written, problems = generate(
-            a.results,
-            a.out,
-            a.data,
-            case_objects=a.case_objects,
-            active_object=a.active_object,
-            progress=not a.quiet,
-            debug=a.debug,
-        )
-    except MissingResults as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    if not a.quiet:
-        for p in written:
-            print(f"wrote {p}")
-    for msg in problems:
-        print(f"error: {msg}", file=sys.stderr)
-    return 1 if problems else 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,9 +1,16 @@
 """Run the paper's experiments as resumable, chunked sweeps with tidy results.
 
-    python -m legs_jax.sweep --all                      # every experiment of SPEC §7
+    python -m legs_jax.sweep --all                      # every experiment
     python -m legs_jax.sweep --experiment main --objects bar_clamp --methods legs tql
     python -m legs_jax.sweep --experiment main --problems my_object.npz
-    python -m legs_jax.sweep --smoke --out /tmp/smoke   # every experiment, toy size
+    python -m legs_jax.sweep --smoke                    # every experiment, toy size
+
+From Python, :func:`run` takes the same options and returns the results folder::
+
+    from legs_jax import sweep
+
+    out = sweep.run(experiment=["main"], objects=["bar_clamp"], methods=["legs"],
+                    trials=2, rollouts=2, horizon=300)
 
 Each experiment (declared in ``experiments/<name>/sweep.py``) is split into chunks: one
 arm (method, variant and its hyperparameter grid, which runs as one batch axis), a few
@@ -19,11 +26,15 @@ Modules: :mod:`~legs_jax.sweep.plan` (arms, chunks, cost model),
 :mod:`~legs_jax.sweep.experiments` (declarations and objects to plans),
 :mod:`~legs_jax.sweep.store` (chunk folders, checksums, reuse, manifests, merge),
 :mod:`~legs_jax.sweep.execute` (running chunks), :mod:`~legs_jax.sweep.hosts`
-(devices, multi-host) and :mod:`~legs_jax.sweep.cli` (the command line).
+(devices, multi-host), :mod:`~legs_jax.sweep.config` (the configuration),
+:mod:`~legs_jax.sweep.driver` (a whole sweep: :func:`run`) and
+:mod:`~legs_jax.sweep.cli` (the command line).
 """
 
-from legs_jax.sweep import cli, execute, experiments, hosts, plan, store
+from legs_jax.sweep import cli, config, driver, execute, experiments, hosts, plan, store
 from legs_jax.sweep.cli import EXPERIMENTS, build_parser, main
+from legs_jax.sweep.config import SweepConfig
+from legs_jax.sweep.driver import run
 from legs_jax.sweep.execute import finish_experiment, run_experiment
 from legs_jax.sweep.plan import (
     MEMORY_BUDGET,
@@ -43,11 +54,14 @@ __all__ = [
     "WORK_BUDGET",
     "Arm",
     "Chunk",
+    "SweepConfig",
     "ExperimentPlan",
     "ObjectEntry",
     "SweepError",
     "build_parser",
     "cli",
+    "config",
+    "driver",
     "execute",
     "experiments",
     "finish_experiment",
@@ -56,6 +70,7 @@ __all__ = [
     "make_arm",
     "plan",
     "plan_chunks",
+    "run",
     "run_experiment",
     "store",
 ]

@@ -3,50 +3,26 @@
 from __future__ import annotations
 
 import argparse
-import difflib
-import itertools
 import sys
-import time
 from collections.abc import Callable, Sequence
-from pathlib import Path
-from typing import Any
 
 import experiments
-from legs_jax import results as res
 from legs_jax._cli import compile_cache_arg, quiet_arg
-from legs_jax._jax_cache import compile_cache
-from legs_jax.sweep.execute import finish_experiment, run_experiment
-from legs_jax.sweep.experiments import (
-    _catalog,
-    _experiment_plan,
-    _precompute_errors,
-    _ProblemsMissing,
-)
-from legs_jax.sweep.hosts import (
-    _barrier,
-    _devices,
-    _init_distributed,
-    _set_device_flags,
-    _wait_for_chunks,
-)
-from legs_jax.sweep.plan import SMOKE, ExperimentPlan, SweepError, _say
-from legs_jax.sweep.store import (
-    _chunk_ok,
-    _complete_and_current,
-    _damaged_tables,
-    _exp_dir,
-    _merged_without_chunks,
-    _prepare_dir,
-    _warn_damaged_tables,
-)
+from legs_jax.core.problem import ProblemFileError
+from legs_jax.errors import ConfigError
+from legs_jax.sweep.config import SweepConfig, validate
+from legs_jax.sweep.driver import run_validated
+from legs_jax.sweep.experiments import _precompute_errors
+from legs_jax.sweep.plan import SMOKE, SweepError
 
 # ====================================================================== arguments
 EXPERIMENTS = experiments.EXPERIMENTS
 
 _PROG = "python -m legs_jax.sweep"
 _DESCRIPTION = (
-    "Run the paper's experiments (SPEC §7) as resumable, chunked sweeps and "
-    "write tidy parquet results under OUT/<experiment>/: runs.parquet (one "
+    "Run the paper's experiments, or your own configuration of them, as "
+    "resumable, chunked sweeps and write tidy parquet results under "
+    "OUT/<experiment>/: runs.parquet (one "
     "row per run), curves.parquet (gap every 10 steps, mean and standard "
     "error over the T x R runs of each object, method and hyperparameters), "
     "checks.parquet (one row per Dirichlet check), manifest.json. Re-running "
@@ -128,7 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="extend",
         metavar="NAME",
         help="run only these methods (separated by spaces or commas): registered "
-        "names (python -c 'from legs_jax import methods; print(methods.names())') "
+        "names (python -c 'from legs_jax.core import methods; print(methods.names())') "
         "or module.path:ATTRIBUTE for a method of your own; a method that no "
         "experiment declares (your own, or an extra such as Bayes-UCB) runs in each "
         "selected experiment with its default hyperparameters",
@@ -154,7 +130,7 @@ def build_parser() -> argparse.ArgumentParser:
         f"({SMOKE['num_poses']} poses, {SMOKE['num_grasps']} grasps) named like the "
         f"real objects (at most {SMOKE['max_objects']} per experiment), "
         f"T={SMOKE['trials']}, R={SMOKE['rollouts']}, H={SMOKE['horizon']}; "
-        "default --out results/_scratch/smoke",
+        "default --out runs/smoke",
     )
     out = p.add_argument_group("output and devices")
     out.add_argument(
@@ -162,7 +138,13 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="delete existing results of the selected experiments and start over",
     )
-    out.add_argument("--out", metavar="DIR", help="output folder (default results)")
+    out.add_argument(
+        "--out",
+        metavar="DIR",
+        help="output folder (default: results/ for the experiments at their "
+        "declared configuration, else a folder of its own under runs/ named from "
+        "what differs, e.g. runs/main-bar_clamp-legs+tql)",
+    )
     out.add_argument(
         "--no-reuse",
         action="store_true",
@@ -192,266 +174,18 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _split_commas(values: Sequence[str] | None) -> list[str] | None:
-    if values is None:
-        return None
-    return [x for v in values for x in v.split(",") if x]
-
-
-def _parse_grid(p: argparse.ArgumentParser, items: Sequence[str]) -> dict[str, Any]:
-    """``NAME=V1,V2 ...`` -> the product of the values as zipped sequences."""
-    axes: dict[str, list[float]] = {}
-    for item in items:
-        name, eq, text = item.partition("=")
-        if not eq or not name or not text:
-            p.error(f"--grid: expected NAME=V1,V2,..., got {item!r}")
-        if name in axes:
-            p.error(f"--grid: {name} given twice")
-        try:
-            axes[name] = [float(x) for x in text.split(",") if x]
-        except ValueError:
-            p.error(f"--grid: {name} takes numbers, got {text!r}")
-        if not axes[name]:
-            p.error(f"--grid: no value for {name}")
-    points = list(itertools.product(*axes.values()))
-    return {n: tuple(pt[i] for pt in points) for i, n in enumerate(axes)}
-
-
-def _validate_args(p: argparse.ArgumentParser, a: argparse.Namespace) -> None:
-    if a.all and a.experiment:
-        p.error("use either --all or --experiment, not both")
-    if a.problems and not a.all and not a.experiment and not a.smoke:
-        a.experiment = ["main"]  # problem files alone: the main configuration
-    if not a.all and not a.experiment and not a.smoke:
-        p.error("nothing to run: pass --all, --experiment NAME or --smoke")
-    for e in a.experiment or ():
-        if e not in EXPERIMENTS:
-            near = difflib.get_close_matches(e, EXPERIMENTS, n=1)
-            hint = f"; did you mean {near[0]}?" if near else ""
-            p.error(f"unknown experiment '{e}' (known: {', '.join(EXPERIMENTS)}){hint}")
-    a.methods = _split_commas(a.methods)
-    if a.methods is not None and not a.methods:
-        p.error("--methods: no method named")
-    from legs_jax.core import methods
-
-    known = methods.names()
-    for m in a.methods or ():
-        if m not in known and ":" not in m:
-            near = difflib.get_close_matches(m, known, n=1)
-            hint = f"; did you mean {near[0]}?" if near else ""
-            p.error(
-                f"unknown method '{m}' (known: {', '.join(known)}; or "
-                f"module.path:ATTRIBUTE for a method of your own){hint}"
-            )
-    a.grid = _parse_grid(p, a.grid) if a.grid else None
-    if a.grid is not None and not a.methods:
-        p.error("--grid needs --methods: the methods to run on the grid")
-    if a.objects and a.problems:
-        p.error("use either --objects or --problems, not both")
-    for f in a.problems or ():
-        if not Path(f).is_file():
-            p.error(f"--problems: no such file: {f}")
-    dist = (a.coordinator, a.num_processes, a.process_id)
-    if any(x is not None for x in dist) and not all(x is not None for x in dist):
-        p.error("--coordinator, --num-processes and --process-id go together")
-    if a.num_processes is not None and a.process_id >= a.num_processes:
-        p.error(f"--process-id must be < --num-processes ({a.num_processes})")
-
-
-def _check_user_methods(plans: Sequence[ExperimentPlan], quiet: bool) -> None:
-    """Run the conformance checks on every method from outside the package
-    (:mod:`legs_jax.core.methods.conformance`) before any chunk; a failure is a
-    one-line error."""
-    from legs_jax.core import methods
-    from legs_jax.core.methods import conformance
-
-    names = {a.method for p in plans for a in p.arms}
-    for name in sorted(n for n in names if not methods.builtin(n)):
-        _say(f"{name}: conformance checks (jit, jit-vmap, masks, finite)", quiet)
-        conformance.check(methods.get(name))
-
-
-def _print_plan(plan: ExperimentPlan, out: Path, overwrite: bool = False) -> None:
-    """What the run would do: nothing for a complete experiment (as the run
-    decides it), a refusal for another configuration, else the chunks to run;
-    with ``overwrite``, every chunk, after deleting what is there."""
-    import json
-
-    d = _exp_dir(out, plan.name)
-    if overwrite:
-        gone = " (deleting the results in it first)" if d.exists() else ""
-        print(
-            f"{plan.name}: {len(plan.objects)} object(s), {len(plan.arms)} arm(s), "
-            f"T={plan.trials} R={plan.rollouts} H={plan.horizon}, "
-            f"--overwrite: all {len(plan.chunks)} chunk(s), "
-            f"{sum(c.rollouts for c in plan.chunks)} rollouts to run -> {d}{gone}"
-        )
-        for c in plan.chunks:
-            print(f"  {c.id}: {c.rollouts} rollouts, P={c.num_poses} K={c.num_grasps}")
-        return
-    try:
-        with open(d / "manifest.json") as fh:
-            old = json.load(fh)
-    except (OSError, json.JSONDecodeError):
-        old = None
-    if old is not None and old.get("config_hash") != res.config_hash(plan.config()):
-        print(
-            f"{plan.name}: {d} holds results of another configuration; the run "
-            "would refuse them (--overwrite replaces them, --out writes elsewhere)"
-        )
-        return
-    if old is not None and old.get("status") == "complete":
-        why = _damaged_tables(d, old)
-        if why is not None:
-            print(f"{plan.name}: the merged tables in {d} are damaged ({why})")
-    if old is not None and (
-        _merged_without_chunks(plan, out) or _complete_and_current(plan, out)
-    ):
-        print(f"{plan.name}: complete in {d}; the run would compute nothing")
-        return
-    todo = [c for c in plan.chunks if not _chunk_ok(d / "chunks", c.id)]
-    print(
-        f"{plan.name}: {len(plan.objects)} object(s), {len(plan.arms)} arm(s), "
-        f"T={plan.trials} R={plan.rollouts} H={plan.horizon}, "
-        f"{len(plan.chunks)} chunk(s) ({len(plan.chunks) - len(todo)} done), "
-        f"{sum(c.rollouts for c in todo)} rollouts to run -> {d}"
-    )
-    for c in todo:
-        print(f"  {c.id}: {c.rollouts} rollouts, P={c.num_poses} K={c.num_grasps}")
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    import signal
-    import threading
-
-    from legs_jax.sweep import execute as _execute
-
-    _execute._INTERRUPTED.clear()
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGINT, _execute._on_sigint)
     parser = build_parser()
     a = parser.parse_args(argv)
-    _validate_args(parser, a)
-    _set_device_flags(a.devices)
-    out = Path(a.out or ("results/_scratch/smoke" if a.smoke else "results"))
-    names = (
-        list(EXPERIMENTS)
-        if (a.all or (a.smoke and not a.experiment))
-        else list(dict.fromkeys(a.experiment))
-    )
-    started = False
     try:
-        from legs_jax.core.problem import ProblemFileError
-        from legs_jax.errors import ConfigError
-
-        dist = _init_distributed(a)
-        devices = _devices(a.devices)
-        compile_cache(a.compile_cache)
-        catalog = _catalog()
-        a.declared = experiments.declared_methods()
-        plans = []
-        for name in names:
-            own_prior = getattr(experiments.get(name), "PRIOR", None)
-            if a.problems and own_prior:
-                _say(
-                    f"{name}: runs the catalogue problems with the {own_prior} prior; "
-                    "skipped with --problems",
-                    a.quiet,
-                )
-                continue
-            generated = [n for n, _ in getattr(experiments.get(name), "GENERATED", ())]
-            others = a.objects and not set(a.objects) & set(generated)
-            if generated and (a.problems or (others and len(names) > 1)):
-                flag = "--problems" if a.problems else "--objects"
-                _say(
-                    f"{name}: runs its own generated problems; skipped with {flag}",
-                    a.quiet,
-                )
-                continue
-            try:
-                plan = _experiment_plan(name, a, catalog, out)
-            except _ProblemsMissing as e:
-                print(
-                    f"{name}: {len(e.names)} problem file(s) missing or out of date, "
-                    "built first when the sweep runs (about 8 s each on 2 cores; "
-                    "or now with python -m precompute --all): " + " ".join(e.names)
-                )
-                continue
-            if plan is None:
-                _say(f"{name}: none of the selected methods; skipped", a.quiet)
-                continue
-            plans.append(plan)
-        if not plans and a.dry_run:
-            return 0
-        if not plans:
-            raise SweepError("no experiment left to run with the selected methods")
-        if a.dry_run:
-            for plan in plans:
-                _print_plan(plan, out, a.overwrite)
-            return 0
-        _check_user_methods(plans, a.quiet)
-        # Refuse conflicting results of any experiment before running anything
-        # (or, with --overwrite, delete them: the leader does, the others wait).
-        for plan in plans:
-            _prepare_dir(plan, out, a.overwrite, dist.leader)
-        _barrier(dist, "legs_jax-sweep-setup")
-        started = True
-        t0 = time.perf_counter()
-        statuses, sessions = {}, {}
-        for plan in plans:
-            _warn_damaged_tables(plan, out)
-        kept = [p.name for p in plans if _merged_without_chunks(p, out)]
-        for name in kept:
-            _say(
-                f"{name}: complete results already in {_exp_dir(out, name)} "
-                "(chunk files not kept); nothing to run, --overwrite recomputes them",
-                a.quiet,
-            )
-            statuses[name] = "already complete"
-        complete = [
-            p.name
-            for p in plans
-            if p.name not in kept and _complete_and_current(p, out)
-        ]
-        for name in complete:
-            _say(
-                f"{name}: complete in {_exp_dir(out, name)}; nothing to run, every "
-                "file left as it is (--overwrite recomputes it)",
-                a.quiet,
-            )
-            statuses[name] = "already complete"
-        kept += complete
-        plans = [p for p in plans if p.name not in kept]
-        for plan in plans:
-            sessions[plan.name] = run_experiment(
-                plan,
-                out,
-                devices=devices,
-                dist=dist,
-                quiet=a.quiet,
-                reuse=not a.no_reuse,
-            )
-            if dist.num_processes == 1:
-                statuses[plan.name] = finish_experiment(
-                    plan, out, sessions[plan.name], a.quiet
-                )
-        if dist.num_processes > 1:
-            # Every process has finished its chunks; the leader merges.
-            _wait_for_chunks(dist, plans, out)
-            _barrier(dist, "legs_jax-sweep-done")
-            for plan in plans:
-                statuses[plan.name] = (
-                    finish_experiment(plan, out, sessions[plan.name], a.quiet)
-                    if dist.leader
-                    else "computed"
-                )
-        summary = ", ".join(f"{k} {v}" for k, v in statuses.items())
-        _say(f"done in {time.perf_counter() - t0:.1f} s: {summary}", a.quiet)
-        return 0
+        config = validate(SweepConfig.from_namespace(a))
+    except ConfigError as e:
+        parser.error(str(e))
+    try:
+        run_validated(config)
     except KeyboardInterrupt:
-        if not started:
-            _say("interrupted before any chunk ran; nothing was written")
         return 130
     except (SweepError, ConfigError, ProblemFileError, *_precompute_errors()) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    return 0

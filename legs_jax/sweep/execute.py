@@ -31,11 +31,11 @@ from legs_jax.sweep.store import (
 
 # ====================================================================== execution
 def _engine():
-    """The rollout engine module (imported late: JAX must start after the device
-    flags are set)."""
-    from legs_jax.core import engine
+    """The runtime that runs rollouts (:mod:`legs_jax.runtime`; imported late: JAX
+    must start after the device flags are set)."""
+    from legs_jax import runtime
 
-    return engine
+    return runtime
 
 
 class _ProblemCache:

@@ -51,7 +51,7 @@ def _catalog():
 
 
 def _name_object_id(name: str) -> int:
-    """Stable object id of a problem outside the catalogue (SPEC §2 contract)."""
+    """Stable object id of a problem outside the catalogue, from its name."""
     from legs_jax.core.keys import object_id_from_name
 
     return int(object_id_from_name(name))

@@ -210,13 +210,24 @@ def make_arm(method: str, variant: str, hparams: Mapping[str, Any]) -> Arm:
 POSE_BUCKETS = (8, 16, 32)
 
 
-def _pose_bucket(p: int) -> int:
-    """The padded pose count of a problem with ``p`` poses."""
-    for b in POSE_BUCKETS:
+def pose_bucket(p: int, buckets: Sequence[int] | None = POSE_BUCKETS) -> int:
+    """The padded pose count of a problem with ``p`` poses under ``buckets`` (the
+    smallest that holds it, past the last its multiples; None: powers of two;
+    empty: no padding, every pose count its own)."""
+    if buckets is None:
+        return 1 << max(0, (p - 1).bit_length())
+    if not buckets:
+        return p
+    for b in buckets:
         if p <= b:
             return b
-    last = POSE_BUCKETS[-1]
+    last = buckets[-1]
     return -(-p // last) * last
+
+
+def _pose_bucket(p: int) -> int:
+    """The padded pose count of a problem with ``p`` poses (the adopted buckets)."""
+    return pose_bucket(p)
 
 
 def _static_config(arm: Arm, P: int, K: int):
@@ -269,12 +280,14 @@ def plan_chunks(
     cfg: ExperimentPlan,
     work_budget: float = WORK_BUDGET,
     memory_budget: float = MEMORY_BUDGET,
+    buckets: Sequence[int] | None = POSE_BUCKETS,
 ) -> list[Chunk]:
     """Split an experiment into chunks, deterministically from its configuration.
 
     Objects of an arm are grouped by padded shape (pose bucket, K) in catalogue
     order; a chunk holds whole objects while they fit the budgets, else one object
-    and an equal-sized block of its trials.
+    and an equal-sized block of its trials. ``buckets``: the pose buckets
+    (:func:`pose_bucket`; the adopted ones unless a study of others asks).
     """
     chunks: list[Chunk] = []
     for a, arm in enumerate(cfg.arms):
@@ -283,7 +296,8 @@ def plan_chunks(
         record_act = arm.method in cfg.active_set_methods
         groups: OrderedDict[tuple[int, int], list[int]] = OrderedDict()
         for i, o in enumerate(cfg.objects):
-            groups.setdefault((_pose_bucket(o.num_poses), o.num_grasps), []).append(i)
+            P = pose_bucket(o.num_poses, buckets)
+            groups.setdefault((P, o.num_grasps), []).append(i)
         for (P, K), members in groups.items():
             every = cfg.check_every if record_checks else 0
             w = _rollout_work(arm, P, K, cfg.horizon, every)

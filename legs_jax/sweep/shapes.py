@@ -10,10 +10,9 @@ planner's cost model adds over running every object at its own pose count
 from __future__ import annotations
 
 import argparse
-import contextlib
 import dataclasses
 import sys
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -35,14 +34,14 @@ CANDIDATES: dict[str, tuple[tuple[int, ...] | None, bool]] = {
 
 def _chunk_programs(plan: ExperimentPlan, c, n_dev: int):
     """(program key, rollouts, rollouts run with the mini-batch padding) of each
-    static group of a chunk, as :func:`legs_jax.core.engine.run` derives them."""
-    from legs_jax.core import engine
+    static group of a chunk, as :func:`legs_jax.runtime.run` derives them."""
+    from legs_jax import runtime
     from legs_jax.core.methods.base import Config
 
     arm = plan.arms[c.arm]
     m = plan_mod._method(arm.method)
     G, O, T = len(arm.grid), len(c.objects), len(c.trials)  # noqa: E741
-    n_pad = engine.table_rows(max(O * T, c.shape_of[0]))
+    n_pad = runtime.table_rows(max(O * T, c.shape_of[0]))
     groups: dict[tuple[int, ...], int] = {}
     for point in arm.grid:
         d = dict(point)
@@ -56,7 +55,7 @@ def _chunk_programs(plan: ExperimentPlan, c, n_dev: int):
         )
         rows = g * O * T * plan.rollouts
         like = max(rows, c.shape_of[1] * g // G)
-        per = engine.mini_batch_rows(m, cfg, like, n_dev, "cpu")
+        per = runtime.mini_batch_rows(m, cfg, like, n_dev, "cpu")
         every = plan.check_every if c.record_checks else None
         key = (m.name, cfg, every, c.record_active_set, n_pad, per)
         run = -(-rows // (per * n_dev)) * per * n_dev
@@ -99,61 +98,41 @@ def padded_work(plans: Sequence[ExperimentPlan], n_dev: int) -> float:
     return padded / own if own else 1.0
 
 
-@contextlib.contextmanager
-def _buckets(choice: tuple[int, ...] | None) -> Iterator[None]:
-    """Plan with other pose buckets (None: powers of two; (): none)."""
-    old_buckets, old_fn = plan_mod.POSE_BUCKETS, plan_mod._pose_bucket
-    if choice is None:
-        plan_mod._pose_bucket = lambda p: 1 << max(0, (p - 1).bit_length())
-    elif not choice:
-        plan_mod._pose_bucket = lambda p: p
-    else:
-        plan_mod.POSE_BUCKETS = choice
-    try:
-        yield
-    finally:
-        plan_mod.POSE_BUCKETS, plan_mod._pose_bucket = old_buckets, old_fn
-
-
 def tradeoff(
     make_plans, n_dev: int = 2, candidates: dict | None = None
 ) -> list[dict[str, Any]]:
     """Programs and padded work of each bucket choice; ``make_plans()`` plans the
-    experiments under the current buckets."""
+    experiments, which are chunked again under each choice."""
     rows = []
     for label, (choice, grouped) in (candidates or CANDIDATES).items():
-        with _buckets(choice):
-            plans = make_plans()
+        plans = make_plans()
+        for plan in plans:
+            plan.chunks = plan_mod.plan_chunks(plan, buckets=choice)
             if not grouped:
-                for plan in plans:
-                    plan.chunks = [
-                        dataclasses.replace(c, shape_of=(0, 0)) for c in plan.chunks
-                    ]
-            keys = program_keys(plans, n_dev)
-            rows.append(
-                {
-                    "buckets": label,
-                    "programs": len(keys),
-                    "methods": len({k[0] for k in keys}),
-                    "work": padded_work(plans, n_dev),
-                }
-            )
+                plan.chunks = [
+                    dataclasses.replace(c, shape_of=(0, 0)) for c in plan.chunks
+                ]
+        keys = program_keys(plans, n_dev)
+        rows.append(
+            {
+                "buckets": label,
+                "programs": len(keys),
+                "methods": len({k[0] for k in keys}),
+                "work": padded_work(plans, n_dev),
+            }
+        )
     return rows
 
 
 def plan_all() -> list[ExperimentPlan]:
-    """The plans of ``python -m legs_jax.sweep --all`` under the current pose
-    buckets, from the problem files' headers (a :class:`SweepError` names the
-    missing ones)."""
+    """The plans of ``python -m legs_jax.sweep --all``, from the problem files'
+    headers (a :class:`SweepError` names the missing ones)."""
     import experiments as declared
-    from legs_jax.sweep import cli
     from legs_jax.sweep import experiments as planning
+    from legs_jax.sweep.config import SweepConfig, validate
 
-    parser = cli.build_parser()
-    args = parser.parse_args(["--all", "--dry-run"])
-    cli._validate_args(parser, args)
+    args = validate(SweepConfig(all=True, dry_run=True))
     catalog = planning._catalog()
-    args.declared = declared.declared_methods()
     out = []
     for name in declared.EXPERIMENTS:
         plan = planning._experiment_plan(name, args, catalog, Path("results"))

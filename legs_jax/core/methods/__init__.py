@@ -1,4 +1,4 @@
-"""The registry of exploration methods (SPEC §4): the one list of them.
+"""The registry of exploration methods: the one list of them.
 
 Each method lives in its own module of this folder that defines ``METHOD``, a
 :class:`legs_jax.core.methods.base.Method` declaring its algorithm (functions,
@@ -7,7 +7,7 @@ hyperparameters, pruning schedule) and its :class:`~legs_jax.core.methods.base.C
 (the engine, the NumPy reference, the sweep, the benchmark, the analysis and the
 figures) asks this registry. A method from outside
 the package is named ``my_pkg.my_module:METHOD`` (:func:`resolve`) and passes the
-same conformance checks as ours (:mod:`legs_jax.core.methods.conformance`).
+same conformance checks as ours (:mod:`legs_jax.runtime.conformance`).
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ __all__ = [
     "resolve",
 ]
 
-# The paper's methods, in the order of SPEC §4's table; every other module of this
+# The paper's methods, in the order' table; every other module of this
 # folder that defines ``METHOD`` follows, by name (a new method is one new file).
 _PAPER = (
     "dexnet",
@@ -49,7 +49,7 @@ _PAPER = (
 )
 # The method run where none is named (the online session, its CLI): the paper's.
 DEFAULT = "legs"
-_NOT_METHODS = ("base", "conformance")
+_NOT_METHODS = ("base",)
 _REGISTRY: dict[str, Method] = {}
 
 

@@ -1,5 +1,5 @@
 """The NumPy twins of the Beta-posterior methods (:mod:`legs_jax.core.reference`
-runs them): Thompson sampling on the Beta posterior of SPEC §3, the constant rows
+runs them): Thompson sampling on the Beta posterior, the constant rows
 and BORGES. They read the prior's hyperparameters (:class:`BetaPrior`) here, with
 the methods that declare them; the reference's loop reads none by name."""
 
@@ -18,7 +18,7 @@ __all__ = ["BetaMethod", "Borges", "Fixed"]
 
 
 class BetaMethod(ref.ReferenceMethod):
-    """Thompson sampling on the Beta posterior of SPEC §3 over ``cand``."""
+    """Thompson sampling on the Beta posterior over ``cand``."""
 
     def __init__(self, problem: Problem, trial: int, hp: Mapping[str, Any]):
         super().__init__(problem, trial, hp)

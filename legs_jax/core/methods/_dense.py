@@ -119,7 +119,7 @@ def candidates(st: DenseState, ctx: Ctx, cfg: Config):
 
 
 def prune(st: DenseState, ctx: Ctx, cfg: Config, s, live):
-    """LEGS(-AS): remove B of SPEC §4 from pose s; no refill."""
+    """LEGS(-AS): remove B from pose s; no refill."""
     bi = jnp.arange(s.shape[0])
     a = st.alpha[bi, s]
     b = st.beta[bi, s]

@@ -106,7 +106,7 @@ def active_set(st: SlotState, ctx: Ctx, cfg: Config):
 
 
 def prune_refill(st: SlotState, ctx: Ctx, cfg: Config, s, live):
-    """LEGS: remove B of SPEC §4 from pose s and refill the slots (slot order) from
+    """LEGS: remove B from pose s and refill the slots (slot order) from
     the queue in descending q; a slot stays empty (-1) once the queue is spent."""
     bi = jnp.arange(s.shape[0])
     a = st.alpha[bi, s]  # [B, k]

@@ -105,10 +105,10 @@ COUNT = Range(1.0, integer=True)  # 1, 2, ...
 
 
 class BetaPrior(NamedTuple):
-    """Hyperparameters of the Beta prior of SPEC §3, shared by the Beta methods."""
+    """Hyperparameters of the Beta prior, shared by the Beta methods."""
 
     s: float = 1.0  # prior strength
-    prior_offset: float = 1.0  # the +1 of SPEC §3
+    prior_offset: float = 1.0  # the +1
 
 
 PRIOR_RANGES = {"s": NON_NEGATIVE, "prior_offset": NON_NEGATIVE}
@@ -231,7 +231,7 @@ class Method:
     - ``prune`` (or None) ``(state, ctx, cfg, s, live) -> (state, removed)``: called
       after the update of a step where ``prune_due`` says so, for the pose just
       grasped: it changes pose s only (our bound counts the grasps it forgets on
-      pose s's rows; :func:`legs_jax.core.methods.conformance.check` refuses a
+      pose s's rows; :func:`legs_jax.runtime.conformance.check` refuses a
       prune that changes another pose's counts); rows with ``live`` False must
       not change; ``removed`` [B] i32 counts the grasps taken out.
     - ``prune_due`` ``(state, ctx, cfg, s, t) -> [B]`` bool: the method's pruning
@@ -441,7 +441,7 @@ def _col(v: jax.Array, ndim: int) -> jax.Array:
 
 
 def posterior_prior(q: jax.Array, hp: Any) -> tuple[jax.Array, jax.Array]:
-    """α, β of the prior of SPEC §3 for grasps of quality q ([B, ...]).
+    """α, β of the prior for grasps of quality q ([B, ...]).
 
     α = prior_offset + s·q_c, β = prior_offset + s·(1 − q_c), q_c = clip(q).
     """
@@ -488,7 +488,7 @@ def prune_mask(
     gamma: jax.Array,
     ids: jax.Array | None = None,
 ) -> jax.Array:
-    """The LEGS removal set B of SPEC §4, batched over rows.
+    """The LEGS removal set B, batched over rows.
 
     B = { i active : i attempted, i ≠ i*, X_{i,u} < X*_ℓ or X_{i,u} < γ }, with
     X_{i,ℓ} = PPF(Beta(α_i, β_i), δ), X_{i,u} = PPF(Beta(α_i, β_i), 1 − δ),

@@ -5,7 +5,7 @@ original BORGES code shipped UCB beside Thompson sampling.
 
 At pose s, with t the number of grasp attempts made there so far counting this
 one, every candidate's index is the 1 − 1/(t + 1) quantile of its Beta posterior
-(SPEC §3; Kaufmann et al.'s c = 0, with t counted per pose); the highest index is
+(Kaufmann et al.'s c = 0, with t counted per pose); the highest index is
 attempted (ties: the lowest grasp id). Over all K grasps only the quantiles that
 can win are computed (:func:`choose_few`): grasps with the same numbers of
 successes and failures differ only by their prior, so in each such group one

@@ -1,4 +1,4 @@
-"""BORGES (K=100): Thompson sampling over the fixed top-100 grasps by q (SPEC §4)."""
+"""BORGES (K=100): Thompson sampling over the fixed top-100 grasps by q."""
 
 from legs_jax.core.methods import _beta_twin as twin
 from legs_jax.core.methods import _slots

@@ -1,4 +1,4 @@
-"""BORGES (K=2000): Thompson sampling over every grasp of the pose (SPEC §4)."""
+"""BORGES (K=2000): Thompson sampling over every grasp of the pose."""
 
 from legs_jax.core.methods import _beta_twin as twin
 from legs_jax.core.methods import _dense

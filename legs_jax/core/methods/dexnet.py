@@ -1,4 +1,4 @@
-"""Dex-Net: the grasp of highest prior q in each pose, no exploration (SPEC §4).
+"""Dex-Net: the grasp of highest prior q in each pose, no exploration.
 
 A constant row: its gap never changes. It still runs in the environment, and its
 Beta posterior of all K grasps (learning only from the fixed grasp) serves the

@@ -1,5 +1,5 @@
 """The K100 upper bound: in each pose, the grasp of highest ground-truth p among the
-top-100 by prior q (SPEC §4). An oracle row, not a method; its gap is constant and
+top-100 by prior q. An oracle row, not a method; its gap is constant and
 bounds what BORGES (K=100) can reach.
 """
 

@@ -1,6 +1,6 @@
 """LEGS (Algorithm 1): Thompson sampling over an active set of k grasps per pose,
 pruned every n steps by the LEGS rule and refilled from the reservoir in descending
-q (SPEC §4).
+q.
 
 The active set of every pose is built at step 0 (it depends on nothing learned, so
 this equals building it on the first visit). The pruning step of one pose is
@@ -31,7 +31,7 @@ __all__ = ["METHOD", "LegsHParams"]
 
 class LegsHParams(NamedTuple):
     s: float = 1.0  # prior strength
-    prior_offset: float = 1.0  # the +1 of SPEC §3
+    prior_offset: float = 1.0  # the +1
     delta: float = 0.05  # confidence of the pruning bounds
     gamma: float = 0.2  # global threshold
     k: int = 100  # active-set size (static)

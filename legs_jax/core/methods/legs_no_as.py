@@ -1,4 +1,4 @@
-"""LEGS(-AS): Thompson sampling over all K grasps, pruned by the LEGS rule of SPEC §4
+"""LEGS(-AS): Thompson sampling over all K grasps, pruned by the LEGS rule
 every n steps (the pose just grasped), with no refill."""
 
 from typing import NamedTuple
@@ -20,7 +20,7 @@ from legs_jax.core.methods.base import (
 
 class LegsNoASHParams(NamedTuple):
     s: float = 1.0  # prior strength
-    prior_offset: float = 1.0  # the +1 of SPEC §3
+    prior_offset: float = 1.0  # the +1
     delta: float = 0.05  # confidence of the pruning bounds
     gamma: float = 0.2  # global threshold
     n: int = 100  # pruning period (static)

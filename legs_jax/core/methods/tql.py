@@ -1,4 +1,4 @@
-"""Tabular Q-learning (SPEC §4): ε-greedy over all K grasps (ε: uniform over the
+"""Tabular Q-learning: ε-greedy over all K grasps (ε: uniform over the
 valid grasps), one-step update Q ← Q + η (r − Q), Q₀ = q."""
 
 from __future__ import annotations

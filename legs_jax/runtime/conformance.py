@@ -15,7 +15,7 @@ first on a method from the user's module; the sweep runs both.
 The cheapest check that can fail runs first, and each program's outputs are checked
 before the next program is compiled, so a broken method is refused in seconds. The
 rollouts are compiled as the sweep compiles them: the Dirichlet bounds in their own
-program, shared by every method (:func:`legs_jax.core.engine.compiled_checks`).
+program, shared by every method (:func:`legs_jax.runtime.compiled_checks`).
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ import numpy as np
 
 from legs_jax.core.methods.base import Method, check_declaration
 from legs_jax.errors import ConfigError
+from legs_jax.runtime import rollouts as runner
 
 __all__ = ["check"]
 
@@ -68,7 +69,7 @@ def check(method: Method, horizon: int = 120, rollouts: int = 8) -> None:
     import jax
     import jax.numpy as jnp
 
-    from legs_jax.core import engine, keys
+    from legs_jax.core import keys
     from legs_jax.core.methods.base import Config
 
     check_declaration(method)
@@ -88,12 +89,12 @@ def check(method: Method, horizon: int = 120, rollouts: int = 8) -> None:
 
     if method.prune is not None and method.counts is not None:
         _prune_keeps_other_poses(method, cfg, tables, ot, hparams(None))
-    checks = engine.compiled_checks()  # one program for every method
+    checks = runner.compiled_checks()  # one program for every method
     try:
-        fn = engine.compiled(
+        fn = runner.compiled(
             method, cfg, horizon, check_every=40, trajectory=True, dirichlet=False
         )
-        before = sum(engine.trace_counts().values())
+        before = sum(runner.trace_counts().values())
         for i in range(2):
             ks = keys.rollout_keys(i, np.full(b, 7), np.arange(b) % 2, np.arange(b))
             _check_outputs(
@@ -102,9 +103,9 @@ def check(method: Method, horizon: int = 120, rollouts: int = 8) -> None:
                 ot,
                 jax.device_get(checks(ks, fn(tables, ot, ks, hparams(None)))),
             )
-        if sum(engine.trace_counts().values()) - before > 1 or fn._cache_size() != 1:
+        if sum(runner.trace_counts().values()) - before > 1 or fn._cache_size() != 1:
             _fail(method, "new keys or hyperparameter values recompiled it")
-        vfn = engine.compiled(
+        vfn = runner.compiled(
             method, cfg, horizon, check_every=40, trajectory=True, grid=True,
             dirichlet=False,
         )  # fmt: skip
