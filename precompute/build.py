@@ -484,7 +484,6 @@ def _mesh_meta(mesh, set_name: str, scale: float, problem_file) -> dict:
     out = {
         "mesh_file": rel,
         "mesh_file_abs": str(absolute),
-        "mesh_name": absolute.name,
         "scale": float(scale),
     }
     if absolute.suffix.lower() == ".urdf":

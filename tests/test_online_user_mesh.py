@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -78,22 +77,31 @@ def test_a_moved_problem_file_finds_its_mesh_by_its_recorded_path(
     want = sorted(x / 1000 for x in SIZE)
     away = tmp_path / "else" / "where" / "deep"
     # the name alone: not found from here, in one line naming --object MESH
-    lone = _moved(problem, away / "a" / "duck.npz")
+    lone = _moved(
+        problem, away / "a" / "duck.npz", mesh_file="duck.stl", mesh_file_abs=None
+    )
     with pytest.raises(PrecomputeError) as e:
         World.from_problem(problem_mod.load(lone), problem_path=lone)
     assert "--object MESH" in str(e.value) and "\n" not in str(e.value)
     # an absolute path, a path relative to the problem file, another key
     rel = os.path.relpath(mesh, away / "b")
     for sub, meta in (
-        ("a", {"mesh_file": str(mesh)}),
-        ("b", {"mesh_file": rel}),
-        ("c", {"mesh_file": "duck.stl", "mesh_path_absolute": str(mesh)}),
+        ("a", {"mesh_file": str(mesh), "mesh_file_abs": None}),
+        ("b", {"mesh_file": rel, "mesh_file_abs": None}),
+        (
+            "c",
+            {
+                "mesh_file": "duck.stl",
+                "mesh_file_abs": None,
+                "mesh_path_absolute": str(mesh),
+            },
+        ),
     ):
         moved = _moved(problem, away / sub / "duck.npz", **meta)
         world = World.from_problem(problem_mod.load(moved), problem_path=moved)
         assert _extent(world) == pytest.approx(want), meta
     # nothing recorded at all: the same clear line
-    bare = _moved(problem, away / "d" / "duck.npz", mesh_file=None)
+    bare = _moved(problem, away / "d" / "duck.npz", mesh_file=None, mesh_file_abs=None)
     with pytest.raises(PrecomputeError, match="--object MESH"):
         World.from_problem(problem_mod.load(bare), problem_path=bare)
 
@@ -117,9 +125,12 @@ def test_simulate_runs_a_users_problem_file_from_another_folder(
     assert rc == 130 and "cannot find" not in err, err
     # moved away from the folder it was built in, with the name alone recorded:
     # one line that says what to do
-    lone = tmp_path / "moved" / "x" / "duck.npz"
-    lone.parent.mkdir(parents=True)
-    shutil.copy(problem, lone)
+    lone = _moved(
+        problem,
+        tmp_path / "moved" / "x" / "duck.npz",
+        mesh_file="duck.stl",
+        mesh_file_abs=None,
+    )
     monkeypatch.chdir(tmp_path)
     rc = cli.main([*args[:2], str(lone), *args[3:], "--out", str(tmp_path / "s")])
     err = capsys.readouterr().err

@@ -5,6 +5,7 @@ file says its mesh is, and no command replacing a committed file unless told."""
 from __future__ import annotations
 
 import hashlib
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -294,6 +295,20 @@ def test_the_problem_file_tells_later_commands_where_its_mesh_is(tmp_path):
     loaded = problem_mod.load(dest)
     assert (dest.parent / loaded.meta["mesh_file"]).resolve() == mesh.resolve()
     world = World.from_problem(loaded, problem_path=dest)
+    assert np.ptp(world.vertices, axis=0).max() == pytest.approx(0.05)
+    # moved alone, far away: found by its absolute path
+    alone = tmp_path / "x" / "y" / "z" / "brick.npz"
+    alone.parent.mkdir(parents=True)
+    shutil.copy(dest, alone)
+    world = World.from_problem(problem_mod.load(alone), problem_path=alone)
+    assert np.ptp(world.vertices, axis=0).max() == pytest.approx(0.05)
+    # moved together with its mesh (the same layout elsewhere): found beside it
+    moved = tmp_path / "copy"
+    shutil.copytree(tmp_path / "meshes", moved / "meshes")
+    shutil.copytree(tmp_path / "out", moved / "out")
+    shutil.rmtree(tmp_path / "meshes")
+    pb2 = problem_mod.load(moved / "out" / "custom" / "brick.npz")
+    world = World.from_problem(pb2, problem_path=moved / "out" / "custom" / "brick.npz")
     assert np.ptp(world.vertices, axis=0).max() == pytest.approx(0.05)
 
 
