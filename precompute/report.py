@@ -415,10 +415,14 @@ def build_parser() -> argparse.ArgumentParser:
     add_overwrite_arg(ap, "--out")
     ap.add_argument(
         "--objects",
+        "--object",
+        "--set",
+        dest="objects",
         nargs="+",
         action="extend",
         metavar="NAME",
-        help="objects or sets (default: all)",
+        help="objects or sets (default: all, and the problems of your own meshes); "
+        "custom: those of your own meshes alone; --object and --set are the same",
     )
     ap.add_argument("--no-figures", action="store_true", help="tables only")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
