@@ -220,8 +220,7 @@ def _beta_rows(k0, k1, a, b, *, capacity=None, capacity2=None):
         return x.reshape(rows, n)
     c1 = _round64(total / 8 + 64) if capacity is None else max(2, capacity)
     c2 = _round64(c1 / 8 + 64) if capacity2 is None else max(2, capacity2)
-    # One gather per slot for both shapes, one for both key words.
-    shapes = jnp.stack([a.reshape(-1), b.reshape(-1)], axis=1)  # [total, 2]
+    a_flat, b_flat = a.reshape(-1), b.reshape(-1)
     key_pairs = jnp.concatenate([k0, k1], axis=1)  # [B, 2]
 
     def first_retry(x, idx):
@@ -231,16 +230,16 @@ def _beta_rows(k0, k1, a, b, *, capacity=None, capacity2=None):
         idx_c = jnp.minimum(idx, total - 1)
         row = idx_c // n
         col = (idx_c - row * n).astype(jnp.uint32)
-        kp = key_pairs[row]
-        ab = shapes[idx_c]
+        kp = key_pairs[row]  # one gather for both words
+        sa, sb = a_flat[idx_c], b_flat[idx_c]
         r0, r1 = kp[:, 0], kp[:, 1]
         v0, v1 = threefry2x32(r0, r1, col, _counter(1))
-        got = _try(_params(ab[:, 0], ab[:, 1]), v0, v1)
+        got = _try(_params(sa, sb), v0, v1)
         buf = jnp.where(valid, got, 0.0)
         slot_data = jnp.stack(
             [
-                jax.lax.bitcast_convert_type(ab[:, 0], jnp.uint32),
-                jax.lax.bitcast_convert_type(ab[:, 1], jnp.uint32),
+                jax.lax.bitcast_convert_type(sa, jnp.uint32),
+                jax.lax.bitcast_convert_type(sb, jnp.uint32),
                 r0,
                 r1,
                 col,
