@@ -59,6 +59,11 @@ an element always keeps the first accepted try of its own sequence 0, 1, 2, ...,
 so the draws do not depend on the buffer sizes, on the batch or on the device
 count.
 
+Speed (2-core AVX2 CPU, per CPU second, K = 2000 Thompson-step shapes): try 0 alone
+is about 1.1x the old sampler's try 0, but twice as many tries are rejected, and the
+packed retry is about half of either sampler's time; end to end this sampler is
+0.95-1.08x the old one and 1.7-2.0x NumPy's ``Generator.beta`` per core.
+
 Switching the engine to this sampler (a later change; it changes every random
 stream of the Thompson methods, so every experiment must be rerun):
 
