@@ -1,4 +1,4 @@
-"""Exact Beta draws by Cheng's log-logistic rejection, fast on CPU and GPU.
+"""Exact Beta draws by Cheng's log-logistic rejection, in plain ``jnp`` (CPU and GPU).
 
 :func:`beta_rows_v2` has the contract of :func:`legs_jax.core.sampling.beta_rows`
 (one key per row, element ``j`` of a row depends only on the row's key, ``j`` and its
@@ -25,7 +25,7 @@ Float32 care (the formulas are the exact ones, rearranged; see :func:`_try`):
 
 - V comes from the integers: U1 = (2k + 1) / 2^25, so U1 / (1 - U1) =
   (2k + 1) / (2^25 - 2k - 1): both sides odd integers, never 0 (a float32
-  ``1 - U1`` would round to 0 at the top of the range).
+  U1 = (k + 1/2) / 2^24 rounds to 1 at the top of the range, and 1 - U1 to 0).
 - The test is written in y = V (BB) or -V (BC) and E = expm1(y) as
   c_lin y - (a + b) log1p(c E) - log 4 with c = min(a, b) / (a + b): in BC the
   O(a + b) terms cancel analytically (c_lin = 0), in BB only O(sqrt(a + b)) terms
@@ -60,9 +60,10 @@ so the draws do not depend on the buffer sizes, on the batch or on the device
 count.
 
 Speed (2-core AVX2 CPU, per CPU second, K = 2000 Thompson-step shapes): try 0 alone
-is about 1.1x the old sampler's try 0, but twice as many tries are rejected, and the
-packed retry is about half of either sampler's time; end to end this sampler is
-0.95-1.08x the old one and 1.7-2.0x NumPy's ``Generator.beta`` per core.
+is 1.0-1.1x as fast as the old sampler's try 0, but twice as many tries are
+rejected, and the packed retry is about half of either sampler's time; end to end
+this sampler is 0.95-1.08x the old one and 1.7-2.0x NumPy's ``Generator.beta`` per
+core.
 
 Switching the engine to this sampler (a later change; it changes every random
 stream of the Thompson methods, so every experiment must be rerun):
