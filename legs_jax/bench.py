@@ -10,6 +10,10 @@ of several repeats; compile time is reported apart.
 - Exact Beta samples per second: this project's sampler
   (:func:`legs_jax.core.sampling.beta_rows`), ``jax.random.beta`` and NumPy's
   ``Generator.beta``, on the same posterior-like shapes.
+- The engine's sampler against its successor
+  (:func:`legs_jax.core.beta_sampler.beta_rows_v2`) and NumPy, timed in turns on
+  one device, per CPU second (per core) and per wall second, on the shapes of a
+  K = 2000 Thompson step; and one Thompson draw step (draw and argmax) with each.
 - Rollout steps per second of BORGES (K=2000), LEGS (k=100) and TQL: the JAX engine
   (:func:`legs_jax.runtime.run`) against the NumPy reference implementation
   (:mod:`legs_jax.core.reference`) of the same method with the same settings, and the
@@ -210,6 +214,59 @@ def _posterior_shapes(rows: int, arms: int) -> tuple[np.ndarray, np.ndarray]:
     return a, b
 
 
+def _thompson_shapes(rows: int, arms: int) -> tuple[np.ndarray, np.ndarray]:
+    """Shapes of a K = ``arms`` Thompson step: 70 % of grasps at the prior
+    α = 1 + q, β = 1 + (1 − q), 25 % tried a few to tens of times, 5 % with
+    hundreds of counts (successes at the grasp's quality q)."""
+    rng = np.random.default_rng(1)
+    q = rng.uniform(0.01, 0.99, (rows, arms))
+    kind = rng.uniform(size=(rows, arms))
+    tries = np.where(
+        kind < 0.70,
+        0,
+        np.where(
+            kind < 0.95,
+            rng.integers(1, 40, (rows, arms)),
+            rng.integers(100, 1000, (rows, arms)),
+        ),
+    )
+    wins = rng.binomial(tries, q)
+    a = (1.0 + q + wins).astype(np.float32)
+    b = (1.0 + (1.0 - q) + tries - wins).astype(np.float32)
+    return a, b
+
+
+def _interleaved_rates(
+    fns: dict[str, Callable[[], Any]], work: float, repeats: int, min_seconds: float
+) -> dict[str, dict[str, float]]:
+    """Work per second of each of ``fns``, timed in turns (repeat r of every one
+    before repeat r + 1 of any), so that a change of machine load hits them
+    alike. For each: the median over repeats of work per wall second and of work
+    per CPU second of this process (all its threads: a per-core rate however
+    many cores a program used)."""
+    wall: dict[str, list[float]] = {k: [] for k in fns}
+    cpu: dict[str, list[float]] = {k: [] for k in fns}
+    for fn in fns.values():
+        fn()  # warm-up (compiled already)
+    for _ in range(repeats):
+        for name, fn in fns.items():
+            calls = 0
+            start, cpu0 = time.perf_counter(), time.process_time()
+            while True:
+                fn()
+                calls += 1
+                elapsed = time.perf_counter() - start
+                if elapsed >= min_seconds:
+                    break
+            used = max(time.process_time() - cpu0, 1e-9)
+            wall[name].append(work * calls / elapsed)
+            cpu[name].append(work * calls / used)
+    return {
+        k: {"per_s": statistics.median(wall[k]), "per_cpu_s": statistics.median(cpu[k])}
+        for k in fns
+    }
+
+
 def _sharded(fn, devices):
     """``fn`` over rows split across ``devices`` (each device its own program)."""
     import jax
@@ -292,6 +349,8 @@ def bench_sampler(cfg: Settings, quiet: bool) -> dict[str, Any]:
         lambda: gen.beta(a64, b64), n, cfg.repeats, cfg.min_seconds
     )
 
+    out.update(bench_sampler_versions(cfg, quiet))
+
     # Random words: the Threefry-2x32 of the sampler, on its own.
     def words(k, ctr):
         w0, w1 = sampling.threefry2x32(k[:, 0:1], k[:, 1:2], ctr, jnp.uint32(7))
@@ -319,6 +378,75 @@ def bench_sampler(cfg: Settings, quiet: bool) -> dict[str, Any]:
     pending = float(jnp.mean((ga < 0) | (gb < 0)))
     out["beta_retry_fraction"] = pending
     out["random_words_per_beta"] = 4 + pending * (4 + 2 * 3 * 2)
+    return out
+
+
+def bench_sampler_versions(cfg: Settings, quiet: bool) -> dict[str, Any]:
+    """The engine's exact Beta sampler against its successor
+    (:func:`legs_jax.core.beta_sampler.beta_rows_v2`) and NumPy's
+    ``Generator.beta``, on the shapes of a K = 2000 Thompson step
+    (:func:`_thompson_shapes`), on one JAX device, timed in turns in this run;
+    and one Thompson draw step (the [B, 2000] draw and its argmax, as BORGES K=2000
+    takes it) with each sampler. Rates per wall second and per CPU second (the
+    per-core figure: XLA may run one device's program on several threads)."""
+    import jax
+    import jax.numpy as jnp
+
+    from legs_jax.core import beta_sampler, sampling
+
+    rows, arms = cfg.sampler_rows, cfg.sampler_arms
+    a, b = _thompson_shapes(rows, arms)
+    dev = jax.local_devices()[0]
+    keys = jax.device_put(jax.random.split(jax.random.key(2), rows), dev)
+    aj, bj = jax.device_put((jnp.asarray(a), jnp.asarray(b)), dev)
+    n = rows * arms
+    samplers = {"old": sampling.beta_rows, "new": beta_sampler.beta_rows_v2}
+    out: dict[str, Any] = {
+        "sampler_versions": {
+            "old": beta_sampler.PREVIOUS_SAMPLER_VERSION,
+            "new": beta_sampler.SAMPLER_VERSION,
+        },
+        "sampler_versions_shape": [rows, arms],
+    }
+
+    def step(sampler):
+        def draw(k, a_, b_):
+            return sampling.argmax_first(sampler(k, a_, b_))
+
+        return draw
+
+    fns: dict[str, Callable[[], Any]] = {}
+    steps: dict[str, Callable[[], Any]] = {}
+    for name, sampler in samplers.items():
+        _say(f"sampler versions: {name} (compiling)", quiet)
+        draw = jax.jit(sampler)
+        pick = jax.jit(step(sampler))
+        start = time.perf_counter()
+        jax.block_until_ready(draw(keys, aj, bj))
+        out[f"sampler_{name}_compile_s"] = round(time.perf_counter() - start, 2)
+        jax.block_until_ready(pick(keys, aj, bj))
+        fns[name] = lambda draw=draw: jax.block_until_ready(draw(keys, aj, bj))
+        steps[name] = lambda pick=pick: jax.block_until_ready(pick(keys, aj, bj))
+    a64, b64 = a.astype(np.float64), b.astype(np.float64)
+    gen = np.random.default_rng(0)
+    fns["numpy"] = lambda: gen.beta(a64, b64)
+    _say("sampler versions: timing old, new and NumPy in turns", quiet)
+    rates = _interleaved_rates(fns, n, cfg.repeats, cfg.min_seconds)
+    for name, r in rates.items():
+        out[f"sampler_{name}_samples_per_s"] = r["per_s"]
+        out[f"sampler_{name}_samples_per_cpu_s"] = r["per_cpu_s"]
+    _say("sampler versions: Thompson draw steps, old and new in turns", quiet)
+    step_rates = _interleaved_rates(steps, 1.0, cfg.repeats, cfg.min_seconds)
+    for name, r in step_rates.items():
+        out[f"thompson_step_{name}_per_s"] = r["per_s"]
+        out[f"thompson_step_{name}_per_cpu_s"] = r["per_cpu_s"]
+    cpu = {k: r["per_cpu_s"] for k, r in rates.items()}
+    out["sampler_new_over_old_per_cpu_s"] = cpu["new"] / cpu["old"]
+    out["sampler_new_over_numpy_per_cpu_s"] = cpu["new"] / cpu["numpy"]
+    out["sampler_old_over_numpy_per_cpu_s"] = cpu["old"] / cpu["numpy"]
+    out["thompson_step_new_over_old_per_cpu_s"] = (
+        step_rates["new"]["per_cpu_s"] / step_rates["old"]["per_cpu_s"]
+    )
     return out
 
 
@@ -687,6 +815,36 @@ def format_table(r: dict[str, Any]) -> str:
         f"  numpy Generator.beta, 1 core "
         f"{_fmt_rate(r['numpy_beta_samples_per_s']):>9}/s",
     ]
+    if "sampler_new_samples_per_cpu_s" in r:
+        rows_, arms_ = r["sampler_versions_shape"]
+        v = r["sampler_versions"]
+        lines += [
+            "",
+            f"Beta samplers side by side (one device, timed in turns; Thompson-step "
+            f"shapes {rows_} x {arms_}): per CPU second (per core) and per wall second",
+        ]
+        for key, label in (
+            ("old", f"old  sampling.beta_rows ({v['old']})"),
+            ("new", f"new  beta_sampler.beta_rows_v2 ({v['new']})"),
+            ("numpy", "numpy Generator.beta"),
+        ):
+            lines.append(
+                f"  {label:<52}"
+                f"{_fmt_rate(r[f'sampler_{key}_samples_per_cpu_s']):>9}/cpu-s"
+                f"{_fmt_rate(r[f'sampler_{key}_samples_per_s']):>9}/s"
+            )
+        lines.append(
+            f"  per core: new/old {r['sampler_new_over_old_per_cpu_s']:.2f}x, "
+            f"new/numpy {r['sampler_new_over_numpy_per_cpu_s']:.2f}x, "
+            f"old/numpy {r['sampler_old_over_numpy_per_cpu_s']:.2f}x"
+        )
+        lines.append(
+            f"  Thompson draw step [{rows_}, {arms_}] + argmax: old "
+            f"{_fmt_rate(r['thompson_step_old_per_cpu_s'])}/cpu-s, new "
+            f"{_fmt_rate(r['thompson_step_new_per_cpu_s'])}/cpu-s "
+            f"({r['thompson_step_new_over_old_per_cpu_s']:.2f}x)"
+        )
+        lines.append("")
     lines += [
         f"  random words (Threefry-2x32, one device) "
         f"{_fmt_rate(r['random_words_per_s_one_device'])}/s; "

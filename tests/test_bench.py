@@ -56,9 +56,20 @@ def test_quick_json_has_every_figure(quick_result):
     for key in ("random_words_per_s_one_device", "numpy_copy_gb_per_s"):
         assert _positive(r[key]), key
     assert 4.0 <= r["random_words_per_beta"] < 6.0
+    # The old and new exact Beta samplers and NumPy, timed in turns.
+    for name in ("old", "new", "numpy"):
+        for unit in ("per_s", "per_cpu_s"):
+            assert _positive(r[f"sampler_{name}_samples_{unit}"]), (name, unit)
+    for name in ("old", "new"):
+        assert _positive(r[f"thompson_step_{name}_per_cpu_s"]), name
+    assert r["sampler_new_over_old_per_cpu_s"] == pytest.approx(
+        r["sampler_new_samples_per_cpu_s"] / r["sampler_old_samples_per_cpu_s"]
+    )
+    assert r["sampler_versions"]["new"] != r["sampler_versions"]["old"]
     # The human-readable table renders from the same figures.
     table = bench.format_table(r)
     assert "jax.random.beta" in table and "borges_2000" in table
+    assert "beta_sampler.beta_rows_v2" in table and "Thompson draw step" in table
 
 
 def test_projection_adds_up_the_sweep():
