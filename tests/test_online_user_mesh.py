@@ -136,3 +136,20 @@ def test_simulate_runs_a_users_problem_file_from_another_folder(
     err = capsys.readouterr().err
     assert rc == 2 and "give it as --object MESH" in err
     assert err.strip().count("\n") == 0 and "Traceback" not in err
+
+
+def test_a_scaled_mesh_is_seen_at_its_scale(tmp_path):
+    """A problem built with --scale: the online world holds the mesh at the size
+    the problem was built at (and its recorded SHA-256 matches)."""
+    work = tmp_path / "work"
+    (work / "meshes").mkdir(parents=True)
+    trimesh.creation.box(SIZE).export(work / "meshes" / "part.stl")
+    args = ["--mesh", "meshes/part.stl", "--units", "mm", "--scale", "0.5"]
+    args += ["--trials", "1", "--grasps", "100", "--samples", "5", "--quiet"]
+    args += ["--prior", "synthetic"]
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    r = run_module("precompute", args, cwd=work, env=env)
+    assert r.returncode == 0, r.stderr
+    path = work / "problems" / "custom" / "part.npz"
+    world = World.from_problem(problem_mod.load(path), problem_path=path)
+    assert _extent(world) == pytest.approx(sorted(s / 2000.0 for s in SIZE))

@@ -100,6 +100,7 @@ class World:
 
         meta = problem.meta
         units, fit = meta.get("units", "m"), meta.get("fit", "none")
+        scale = float(meta.get("scale", 1.0))  # precompute --scale
         want = meta.get("mesh_sha256")
         if mesh_path is None:
             try:
@@ -110,9 +111,10 @@ class World:
                 want is None or file_sha256(info.mesh_path) == want
             ):
                 mesh_path, units, fit = info.mesh_path, info.units, info.fit
+                scale = 1.0
             else:  # a user's own mesh (perhaps named like a catalogue object)
                 mesh_path = _find_mesh(problem, problem_path)
-        mesh = load_mesh(mesh_path, units, fit)
+        mesh = load_mesh(mesh_path, units, fit, scale)
         if want is not None and mesh.sha256 != want:
             raise PrecomputeError(
                 f"{Path(mesh_path)} is not the mesh the problem of {problem.name} "
