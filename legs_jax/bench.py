@@ -86,7 +86,7 @@ def proxy() -> dict[str, str]:
 # Dirichlet checks every this many steps for the methods the main sweep checks
 # (experiments.main.CHECK_METHODS); the others run without, as in the sweep.
 CHECK_EVERY = 100
-# Object sets of SPEC §6 (used when the mesh catalogue is not installed).
+# The object sets (used when the mesh catalogue is not installed).
 SET_SIZES = {"dexnet_adv": 13, "egad_eval": 49}
 MAX_HOST_DEVICES = 8
 

@@ -1,4 +1,4 @@
-"""precompute: meshes -> problem files (SPEC §1, §6).
+"""precompute: meshes -> problem files.
 
 ``python -m precompute --help`` builds problem files; ``python -m precompute report``
 summarises them. The sweep calls :func:`ensure`, which builds missing or out-of-date

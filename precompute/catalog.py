@@ -52,7 +52,7 @@ class ObjectInfo:
     set: str  # "dexnet_adv" or "egad_eval"
     name: str  # e.g. "bar_clamp", "C3"
     mesh_path: Path  # data/meshes/<set>/<name>.obj
-    object_id: int  # index in the sorted catalogue (seeding, SPEC §2)
+    object_id: int  # index in the sorted catalogue (seeding)
     units: str  # "m" or "mm", the length unit of the mesh file
     fit: str = "none"  # size rule: "none" (file size) or "egad" (EGAD!'s rule)
 

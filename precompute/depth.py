@@ -1,4 +1,4 @@
-"""Overhead depth images of a posed object, with a sensor's noise (issue 15).
+"""Overhead depth images of a posed object, with a sensor's noise.
 
 Camera (the learned prior's only view of an object)
 ---------------------------------------------------

@@ -3,7 +3,7 @@
 Gripper (all lengths in metres, in the pose frame: table at z = 0, z up)
 -------------------------------------------------------------------------
 A parallel-jaw gripper approaching vertically from above, jaw axis horizontal
-(a Franka-Panda-like hand; SPEC §6 leaves the opening to us, "≈ 0.08 m"):
+(a Franka-Panda-like hand; the paper leaves the opening to us, "≈ 0.08 m"):
 
 - ``OPENING`` = 0.08: distance between the two finger pads when open (the Franka
   Hand opens 80 mm).
@@ -39,7 +39,7 @@ Executing a grasp (nominal or perturbed)
    the outward pad normals and v the unit vector from contact 1 to contact 2.
    Contacts under the table fail.
 
-Ground truth p (SPEC §6): the fraction of ``SAMPLES`` = 50 perturbed executions that
+Ground truth p: the fraction of ``SAMPLES`` = 50 perturbed executions that
 succeed; each sample draws a planar translation of the gripper relative to the
 object (σ = ``SIGMA_TRANSLATION`` = 10 mm / √2 ≈ 7.07 mm per horizontal axis, so
 10 mm root-mean-square in the plane; Dex-Net's configurations use 5-10 mm), a yaw

@@ -1,4 +1,4 @@
-"""Stable poses, landing probabilities and the topple matrix (SPEC §6).
+"""Stable poses, landing probabilities and the topple matrix.
 
 Quasi-static convex-hull model (Goldberg et al. 1999, "Part pose statistics"; the
 model behind ``trimesh.poses.compute_stable_poses``), vectorised over hull triangles:

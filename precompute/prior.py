@@ -1,4 +1,4 @@
-"""The prior q: a synthetic stand-in for GQ-CNN (SPEC §6). Synthetic, not learned.
+"""The prior q: a synthetic stand-in for GQ-CNN. Synthetic, not learned.
 
 GQ-CNN cannot be run here, so q is made from the ground truth p plus seeded noise:
 

@@ -7,7 +7,7 @@ are cast in chunks of at most ``CHUNK`` rays; each chunk is a single Embree call
 Embree works in float32; objects are about 0.1 m, so a float32 position is good to
 about 10 nm, far below any length that matters here.
 
-Pad normals (SPEC §6). A finger pad touches an area, not a point: pressed on a rough
+Pad normals. A finger pad touches an area, not a point: pressed on a rough
 surface, a flat pad rests on the plane of the surface under it, so the contact
 normal it feels is that plane's (Dex-Net likewise takes its contact normals from
 the gradient of a smoothed signed-distance field, BerkeleyAutomation/dex-net

@@ -1,4 +1,4 @@
-"""Generated training objects for the learned prior (issue 15), never the 62.
+"""Generated training objects for the learned prior, never the 62.
 
 Three families in turn (object ``index`` is of family ``index % 3``), each draw
 from its own seeded stream ``SeedSequence([seed, STREAM_SHAPES, index, attempt])``:

@@ -1,5 +1,5 @@
 """Training examples for the learned prior: generated objects, labelled by the same
-physics as the evaluation problems (issue 15).
+physics as the evaluation problems.
 
 An object (:mod:`precompute.shapes`) is posed as an evaluation object is (stable
 poses, λ ≥ ``poses.LANDING_THRESHOLD``, :mod:`precompute.poses`), except that

@@ -647,7 +647,7 @@ def _discussion(ctx: Mapping) -> list[str]:
         "pruning interval n. At every pruning step removed slots are refilled from "
         "the queue; a new grasp has only its prior, whose posterior mean "
         "(1 + q) / 3 at s = 1 beats that of grasps that have failed, so the "
-        "recommendation (argmax posterior mean over the active set, SPEC) jumps to "
+        "recommendation (argmax posterior mean over the active set) jumps to "
         "it until it is tried. All rollouts prune at the same steps, so the jumps "
         "add up in the mean curve.",
         "",
