@@ -1,9 +1,10 @@
 """Prior-only rows of Table I and other per-object statistics of a problem.
 
 Gaps as the sweep computes them: Δ = Σ_s λ_s (p*_s − p[s, π(s)]) with p*_s the
-best p of the trial's reservoir of pose s; by the rule a method declares (``prior_only``):
-"greedy" (Dex-Net), π(s) = argmax q over the valid grasps (ties: lowest index);
-"top" (the K100 upper bound), π(s) = argmax p over the 100 grasps of highest q.
+best p of the trial's reservoir of pose s; by the rule a method declares
+(``prior_only``): "greedy" (Dex-Net), π(s) = argmax q over the valid grasps
+(ties: lowest index); "top" (the K100 upper bound), π(s) = argmax p over the 100
+grasps of highest q.
 A pose without valid grasps adds nothing. Per object, the mean over trials.
 """
 
