@@ -520,6 +520,13 @@ _CHECK_RESULTS = [
 ]
 
 
+def run_columns_besides_hparams() -> frozenset[str]:
+    """The columns of ``runs.parquet`` that are not a hyperparameter: what names
+    a run and what it measured (every other column is a method's hyperparameter,
+    a user's method's included)."""
+    return frozenset([*_ARM_COLUMNS, "trial", "rollout", "seed", *_RUN_RESULTS])
+
+
 def _run_columns() -> list[str]:
     return [*_ARM_COLUMNS, "trial", "rollout", "seed", *hparam_columns(), *_RUN_RESULTS]
 

@@ -25,35 +25,17 @@ import pandas as pd
 
 from legs_jax.report import analysis as an
 from legs_jax.report import document as rp
+from legs_jax.results import run_columns_besides_hparams
 
 __all__ = [
     "declared_axes",
     "grid_axes",
     "grid_figure",
     "grid_section",
+    "grid_table",
     "grid_tables",
     "user_grid",
 ]
-
-# Columns of runs.parquet that are not hyperparameters.
-_NOT_HPARAMS = frozenset(
-    {
-        "experiment",
-        "set",
-        "object",
-        "method",
-        "variant",
-        "trial",
-        "rollout",
-        "seed",
-        "horizon",
-        "final_gap",
-        "final_performance",
-        "successes",
-        "distinct_grasps",
-        "replacements",
-    }
-)
 
 
 def declared_axes(
@@ -71,10 +53,11 @@ def declared_axes(
 def grid_axes(runs: pd.DataFrame) -> list[str]:
     """The hyperparameter columns that take several values within one arm
     (method, variant), in column order."""
+    not_hparams = run_columns_besides_hparams()
     hp = [
         c
         for c in runs.columns
-        if c not in _NOT_HPARAMS and pd.api.types.is_numeric_dtype(runs[c])
+        if c not in not_hparams and pd.api.types.is_numeric_dtype(runs[c])
     ]
     if not hp or runs.empty:
         return []
@@ -160,53 +143,42 @@ def _arm_label(method: str, variant: str) -> str:
     return an.Arms().label(method, variant)
 
 
-def per_set_table(per_set: pd.DataFrame, axes: Sequence[str], experiment: str):
-    header = ["Set", "Method", *axes, "Objects", "Final gap"]
-    rows = []
-    for _, r in per_set.iterrows():
-        rows.append(
-            [
-                an.SET_LABELS.get(r["set"], r["set"]),
-                _arm_label(r["method"], r["variant"]),
-                *[f"{float(r[a]):g}" for a in axes],
-                str(int(r["n_objects"])),
-                rp.Num(float(r["mean"]), float(r["se"]), 3, False),
-            ]
-        )
-    return rp.Table(
-        header,
-        rows,
-        "ll" + "c" * len(axes) + "rc",
-        caption=f"Final optimality gap over the grid ({experiment})",
-        label=f"tab:grid-{experiment}",
-        notes=[
-            "Mean ± standard error across objects of each object's mean final gap "
-            "over its T × R runs (Table I's aggregation), at every grid point."
-        ],
+def grid_table(df: pd.DataFrame, axes: Sequence[str], experiment: str) -> rp.Table:
+    """The Markdown/LaTeX table of :func:`grid_tables`' ``per_set`` (mean ± SE
+    across objects) or ``per_object`` (mean ± SE over an object's runs)."""
+    per_object = "object" in df.columns
+    name, count, mean, se = (
+        ("Object", "n_runs", "gap_mean", "gap_se")
+        if per_object
+        else (None, "n_objects", "mean", "se")
     )
-
-
-def per_object_table(per_object: pd.DataFrame, axes: Sequence[str], experiment: str):
-    header = ["Set", "Object", "Method", *axes, "Runs", "Final gap"]
+    header = ["Set", *([name] if name else []), "Method", *axes]
+    header += ["Runs" if per_object else "Objects", "Final gap"]
     rows = []
-    for _, r in per_object.iterrows():
+    for _, r in df.iterrows():
         rows.append(
             [
                 an.SET_LABELS.get(r["set"], r["set"]),
-                str(r["object"]),
+                *([str(r["object"])] if per_object else []),
                 _arm_label(r["method"], r["variant"]),
                 *[f"{float(r[a]):g}" for a in axes],
-                str(int(r["n_runs"])),
-                rp.Num(float(r["gap_mean"]), float(r["gap_se"]), 3, False),
+                str(int(r[count])),
+                rp.Num(float(r[mean]), float(r[se]), 3, False),
             ]
         )
+    what = "per object " if per_object else ""
     return rp.Table(
         header,
         rows,
-        "lll" + "c" * len(axes) + "rc",
-        caption=f"Final optimality gap per object over the grid ({experiment})",
-        label=f"tab:grid-per-object-{experiment}",
-        notes=["Mean ± standard error of the final gap over the object's runs."],
+        ("lll" if per_object else "ll") + "c" * len(axes) + "rc",
+        caption=f"Final optimality gap {what}over the grid ({experiment})",
+        label=f"tab:grid-{'per-object-' if per_object else ''}{experiment}",
+        notes=[
+            "Mean ± standard error of the final gap over the object's runs."
+            if per_object
+            else "Mean ± standard error across objects of each object's mean final "
+            "gap over its T × R runs (Table I's aggregation), at every grid point."
+        ],
     )
 
 
@@ -315,12 +287,12 @@ def grid_step(experiment: str, axes: Sequence[str]):
         t = grid_tables(runs, axes)
         stem = f"grid_{experiment}"
         files = rp.write_pair(
-            stem, per_set_table(t["per_set"], axes, experiment), run.tables
+            stem, grid_table(t["per_set"], axes, experiment), run.tables
         )
         files.append(write_csv(t["per_set"], run.tables / f"{stem}.csv"))
         files += rp.write_pair(
             f"{stem}_per_object",
-            per_object_table(t["per_object"], axes, experiment),
+            grid_table(t["per_object"], axes, experiment),
             run.tables,
         )
         files.append(write_csv(t["per_object"], run.tables / f"{stem}_per_object.csv"))
@@ -400,7 +372,7 @@ def grid_section(experiment: str):
             "",
             f"![final gap over the grid]({rel}/grid_{experiment}.png)",
             "",
-            rp.to_markdown(per_set_table(g["per_set"], g["axes"], experiment)),
+            rp.to_markdown(grid_table(g["per_set"], g["axes"], experiment)),
         ]
         L += _best_lines(g["per_set"], g["per_object"], g["axes"])
         L.append("")
