@@ -167,18 +167,26 @@ def _timed_rate(
 ) -> float:
     """Median over ``repeats`` of work per second; each repeat calls ``fn`` until
     at least ``min_seconds`` have passed."""
-    rates = []
-    for _ in range(repeats):
-        calls = 0
-        start = time.perf_counter()
-        while True:
-            fn()
-            calls += 1
-            elapsed = time.perf_counter() - start
-            if elapsed >= min_seconds:
-                break
-        rates.append(work * calls / elapsed)
-    return statistics.median(rates)
+    return statistics.median(
+        _timed_calls(fn, work, min_seconds)[0] for _ in range(repeats)
+    )
+
+
+def _timed_calls(
+    fn: Callable[[], Any], work: float, min_seconds: float
+) -> tuple[float, float]:
+    """(work per wall second, work per CPU second of this process) of calling
+    ``fn`` until at least ``min_seconds`` have passed."""
+    calls = 0
+    start, cpu0 = time.perf_counter(), time.process_time()
+    while True:
+        fn()
+        calls += 1
+        elapsed = time.perf_counter() - start
+        if elapsed >= min_seconds:
+            break
+    used = max(time.process_time() - cpu0, 1e-9)
+    return work * calls / elapsed, work * calls / used
 
 
 def _cpu_model() -> str:
@@ -250,17 +258,9 @@ def _interleaved_rates(
         fn()  # warm-up (compiled already)
     for _ in range(repeats):
         for name, fn in fns.items():
-            calls = 0
-            start, cpu0 = time.perf_counter(), time.process_time()
-            while True:
-                fn()
-                calls += 1
-                elapsed = time.perf_counter() - start
-                if elapsed >= min_seconds:
-                    break
-            used = max(time.process_time() - cpu0, 1e-9)
-            wall[name].append(work * calls / elapsed)
-            cpu[name].append(work * calls / used)
+            per_s, per_cpu_s = _timed_calls(fn, work, min_seconds)
+            wall[name].append(per_s)
+            cpu[name].append(per_cpu_s)
     return {
         k: {"per_s": statistics.median(wall[k]), "per_cpu_s": statistics.median(cpu[k])}
         for k in fns

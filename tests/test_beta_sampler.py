@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.stats
+from test_sampling import EXTREME_SHAPES
 
 from legs_jax.core import beta_sampler, sampling
 
@@ -243,16 +244,7 @@ def test_shapes_dtypes_and_broadcasting():
         beta_sampler.beta_rows_v2(jnp.zeros((2, 3), jnp.uint32), a, a)
 
 
-EXTREME = [
-    (1e-6, 1e-6),
-    (1e-3, 5.0),
-    (0.0, 2.0),
-    (1e6, 1e6),
-    (1e6, 1.0),
-    (1.0, 1e6),
-    (1e-3, 1e6),
-    (1e-30, 1e-30),
-]
+EXTREME = EXTREME_SHAPES  # the old sampler's test's shapes
 
 
 def test_extreme_shapes_finite_and_centred():
