@@ -205,7 +205,7 @@ def load_mesh(
     if suffix == ".urdf":
         from .urdf import read_urdf
 
-        vertices, faces, sha = read_urdf(path)
+        vertices, faces, sha = read_urdf(path, read_mesh_file)
     else:
         vertices, faces, sha = read_mesh_file(path)
 

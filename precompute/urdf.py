@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import xml.etree.ElementTree as ET
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -168,13 +169,15 @@ def _prim(kind, size, tf, source) -> dict:
     return {"kind": kind, "size": size, "origin": tf, "source": source}
 
 
-def read_urdf(path: str | Path) -> tuple[np.ndarray, np.ndarray, str]:
+def read_urdf(
+    path: str | Path, read_mesh_file: Callable[[Path], tuple]
+) -> tuple[np.ndarray, np.ndarray, str]:
     """(vertices [V, 3] in the URDF's units, with each mesh's scale and origin
     applied; faces [F, 3]; SHA-256 of the URDF's bytes and of every mesh file it
-    names), the shapes of :func:`urdf_geometry` as one mesh."""
+    names), the shapes of :func:`urdf_geometry` as one mesh; each mesh file read
+    by ``read_mesh_file`` (:func:`precompute.mesh.read_mesh_file`: vertices,
+    faces, SHA-256)."""
     import trimesh
-
-    from .mesh import read_mesh_file
 
     path = Path(path)
     h = hashlib.sha256(path.read_bytes())

@@ -41,6 +41,8 @@ import pandas as pd
 
 from legs_jax.report import analysis as an
 from legs_jax.report import document as rp
+from legs_jax.report import grid
+from legs_jax.report.plotting import pyplot, save_figure, write_csv
 
 __all__ = [
     "MissingResults",
@@ -72,10 +74,6 @@ class Experiment(NamedTuple):
     arms: tuple = ()
     steps: tuple = ()
     sections: tuple = ()
-
-
-_PNG_META = {"Software": None}
-_DPI = 150
 
 
 class MissingResults(Exception):
@@ -213,40 +211,6 @@ class ObjectData:
 
 
 # ================================================================ plot helpers
-def pyplot():
-    import matplotlib
-
-    if matplotlib.get_backend().lower() not in ("agg", "pdf", "svg", "cairo"):
-        try:
-            matplotlib.use("Agg")
-        except Exception:  # noqa: BLE001 - keep the current backend
-            pass
-    import matplotlib.pyplot as plt
-
-    plt.rcParams.update(
-        {
-            "font.size": 9,
-            "axes.titlesize": 10,
-            "axes.labelsize": 9,
-            "legend.fontsize": 8.5,
-            "xtick.labelsize": 8,
-            "ytick.labelsize": 8,
-            "axes.spines.top": False,
-            "axes.spines.right": False,
-        }
-    )
-    return plt
-
-
-def save_figure(fig, path: Path) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=_DPI, metadata=_PNG_META, facecolor="white")
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
-    return path
-
-
 def method_style(method: str, variant: str, arms: an.Arms) -> dict[str, Any]:
     """The arm's declared line style (its method's, or its variant's)."""
     style = arms.declaration(method, variant).get("style")
@@ -281,9 +245,6 @@ def set_label(set_: str) -> str:
 
 
 # ==================================================================== tables
-def write_csv(df: pd.DataFrame, path: Path) -> Path:
-    rp.write_text(path, rp.to_csv(df))
-    return path
 
 
 def appendix_tables(
@@ -362,8 +323,6 @@ def plan_report(res: Results, reported: Sequence[Experiment]) -> tuple[list, lis
     does not (a ``--grid`` sweep), the grid's (:mod:`legs_jax.report.grid`). An
     experiment with no results contributes nothing; the report lists it as not
     run."""
-    from legs_jax.report import grid
-
     steps: list = []
     sections: list = []
     for e in reported:

@@ -25,6 +25,7 @@ import pandas as pd
 
 from legs_jax.report import analysis as an
 from legs_jax.report import document as rp
+from legs_jax.report.plotting import pyplot, save_figure, write_csv
 from legs_jax.results import run_columns_besides_hparams
 
 __all__ = [
@@ -186,8 +187,6 @@ def grid_figure(per_set: pd.DataFrame, axes: Sequence[str], path: Path) -> Path:
     """One panel per data set (and arm, for a heatmap): the final gap over the grid.
     One axis: a line per arm with ± 1 SE bars; two: a heatmap per arm; more: lines
     over the first axis, one per setting of the others."""
-    from legs_jax.report.figures import pyplot, save_figure
-
     plt = pyplot()
     sets = an.order_sets(per_set["set"])
     arms = list(dict.fromkeys(zip(per_set["method"], per_set["variant"], strict=True)))
@@ -281,8 +280,6 @@ def grid_step(experiment: str, axes: Sequence[str]):
     ``.csv``) and figure, kept in the report's context under ``grid:<name>``."""
 
     def step(run) -> None:
-        from legs_jax.report.figures import write_csv
-
         runs = run.res.table(experiment, "runs")
         t = grid_tables(runs, axes)
         stem = f"grid_{experiment}"
