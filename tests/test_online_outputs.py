@@ -147,3 +147,21 @@ def test_another_configuration_goes_to_runs_and_overwrite_replaces(repo, capsys)
     assert (repo / "mine" / "recognition.md").is_file()
     assert cli.main([*args, "--out", str(repo / "t.md")]) == 0
     assert (repo / "t.md").is_file()
+
+
+def test_regenerating_the_table_keeps_the_notes_below_it(tmp_path):
+    """The shipped table carries notes below its "Targets:" line; a regenerated
+    table keeps them, so the same numbers give the same file."""
+    shipped = Path(__file__).resolve().parents[1] / "results/online/recognition.md"
+    text = shipped.read_text()
+    notes = table_mod.kept_notes(shipped)
+    assert notes.strip().startswith("Wrong merges:")
+    # the generated part is everything up to and including the Targets line
+    generated = text[: len(text) - len(notes)]
+    assert generated.rstrip().endswith("Targets: ≥ 95 % right, ≤ 2 % duplicates.")
+    out = tmp_path / "recognition.md"
+    out.write_text(text)
+    assert generated + table_mod.kept_notes(out) == text
+    out.write_text(generated)  # a table without notes keeps none
+    assert table_mod.kept_notes(out) == ""
+    assert table_mod.kept_notes(tmp_path / "missing.md") == ""

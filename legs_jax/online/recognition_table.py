@@ -15,6 +15,7 @@ over all new poses.
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -175,9 +176,15 @@ def main(args) -> int:
     if bar is not None:
         bar.close()
     text = table_markdown(rows, args.views, args.seed, names)
+    notes = kept_notes(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(text)
+    out.write_text(text + notes)
     print(text)
+    if notes:
+        print(
+            f"kept the notes below the table in {out}; check that they still "
+            "describe the new numbers"
+        )
     print(f"wrote {out}")
     if args.out is None and not shipped:
         print(
@@ -186,6 +193,18 @@ def main(args) -> int:
             "names another place)"
         )
     return 0
+
+
+def kept_notes(path: Path) -> str:
+    """The notes written below the table of an existing file (everything after
+    its "Targets:" line), which regenerating the table keeps; "" when there are
+    none."""
+    if not path.is_file():
+        return ""
+    old = path.read_text()
+    at = old.find("\nTargets:")
+    end = old.find("\n", at + 1) if at >= 0 else -1
+    return old[end + 1 :] if end >= 0 else ""
 
 
 def is_shipped(names, views: int, seed: int) -> bool:
