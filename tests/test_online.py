@@ -9,7 +9,6 @@ import warnings
 
 import numpy as np
 import pytest
-import trimesh
 
 from legs_jax.online import InputError, Intrinsics, OrderError, Session, StateError, cli
 from legs_jax.online.protocol import serve
@@ -24,18 +23,6 @@ K = 300  # reservoir size of the sessions here
 @pytest.fixture(scope="module")
 def clamp() -> World:
     return World.from_mesh("bar_clamp")
-
-
-@pytest.fixture(scope="module")
-def box() -> World:
-    """A 40 x 60 x 30 mm box resting on its largest face (one pose)."""
-    m = trimesh.creation.box((0.04, 0.06, 0.03))
-    tf = np.eye(4)
-    tf[2, 3] = 0.015
-    return World(
-        "box", np.asarray(m.vertices), np.asarray(m.faces), tf[None], np.ones(1),
-        np.ones((1, 1)),
-    )  # fmt: skip
 
 
 def robot(world, seed=0) -> SimRobot:

@@ -20,7 +20,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import small_clamp_file
 
 ROOT = Path(__file__).resolve().parents[1]
 _CACHE = Path()  # a compilation cache shared by the runs of this module
@@ -30,12 +29,6 @@ _CACHE = Path()  # a compilation cache shared by the runs of this module
 def _compile_cache(tmp_path_factory):
     global _CACHE
     _CACHE = tmp_path_factory.mktemp("jax_cache")
-
-
-@pytest.fixture(scope="module")
-def clamp_problem(tmp_path_factory) -> Path:
-    """A small bar_clamp problem (1 trial, 100 grasps a pose, 20 samples)."""
-    return small_clamp_file(tmp_path_factory.mktemp("problem"))
 
 
 def _cmd(out: Path, steps: int, extra=()) -> list[str]:

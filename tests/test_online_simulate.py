@@ -11,20 +11,13 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import pytest
 import trimesh
-from helpers import small_clamp_file
 
 from legs_jax.core import problem as problem_mod
 from legs_jax.online import cli
 from legs_jax.online import simulate as sim_mod
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-@pytest.fixture(scope="module")
-def clamp_problem(tmp_path_factory) -> Path:
-    return small_clamp_file(tmp_path_factory.mktemp("problem"))
 
 
 def _curve(out: Path) -> list[dict]:

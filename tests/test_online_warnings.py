@@ -12,15 +12,13 @@ import re
 
 import numpy as np
 import pytest
-import trimesh
-from helpers import small_clamp_file
 
 from legs_jax.core import problem as problem_mod
 from legs_jax.online import Intrinsics, Session, cli
 from legs_jax.online import session as session_mod
 from legs_jax.online import simulate as sim_mod
 from legs_jax.online.protocol import serve
-from legs_jax.online.robot import SimRobot, World
+from legs_jax.online.robot import SimRobot
 
 N = session_mod.NO_SUCCESS_ATTEMPTS
 K = 200  # reservoir size of the sessions here
@@ -78,18 +76,6 @@ def test_serve_writes_warnings_to_stderr_not_into_the_protocol(tmp_path):
     assert line.startswith("warning: pose 1 ") and f" {N} " in line
 
 
-@pytest.fixture(scope="module")
-def box() -> World:
-    """A 40 x 60 x 30 mm box resting on its largest face (one pose)."""
-    m = trimesh.creation.box((0.04, 0.06, 0.03))
-    tf = np.eye(4)
-    tf[2, 3] = 0.015
-    return World(
-        "box", np.asarray(m.vertices), np.asarray(m.faces), tf[None], np.ones(1),
-        np.ones((1, 1)),
-    )  # fmt: skip
-
-
 def test_recognition_of_one_pose_only_warns_once(tmp_path, box, monkeypatch):
     """A box that always lands on the same face: after ONE_POSE_STEPS steps (3
     here, to keep the test short) one warning; a session with given poses, which
@@ -108,11 +94,6 @@ def test_recognition_of_one_pose_only_warns_once(tmp_path, box, monkeypatch):
     assert "recognition has seen one pose only in 3 steps" in got[2][0]
     with Session.create(tmp_path / "g", given_poses=given_poses(P=1)) as ses:
         assert not any(_attempt(ses, 0, True) for _ in range(5))
-
-
-@pytest.fixture(scope="module")
-def clamp_problem(tmp_path_factory):
-    return small_clamp_file(tmp_path_factory.mktemp("problem"))
 
 
 def test_simulate_warns_of_dead_poses_before_the_run(tmp_path, clamp_problem, capsys):

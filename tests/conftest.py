@@ -1,0 +1,30 @@
+"""Fixtures that several test files share; each is built once per test session."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from helpers import small_clamp_file
+
+from legs_jax.online.robot import World
+
+
+@pytest.fixture(scope="session")
+def box() -> World:
+    """A 40 x 60 x 30 mm box resting on its largest face (one pose)."""
+    m = trimesh.creation.box((0.04, 0.06, 0.03))
+    tf = np.eye(4)
+    tf[2, 3] = 0.015
+    return World(
+        "box", np.asarray(m.vertices), np.asarray(m.faces), tf[None], np.ones(1),
+        np.ones((1, 1)),
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="session")
+def clamp_problem(tmp_path_factory) -> Path:
+    """A small bar_clamp problem file (1 trial, 100 grasps a pose, 20 samples)."""
+    return small_clamp_file(tmp_path_factory.mktemp("problem"))
