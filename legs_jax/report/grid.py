@@ -15,7 +15,6 @@ step and section.
 from __future__ import annotations
 
 import itertools
-import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -51,19 +50,25 @@ def declared_axes(
     return out
 
 
-def grid_axes(runs: pd.DataFrame) -> list[str]:
-    """The hyperparameter columns that take several values within one arm
-    (method, variant), in column order."""
+def _distinct_per_arm(runs: pd.DataFrame) -> pd.DataFrame:
+    """Per arm (method, variant), how many values each hyperparameter column of
+    ``runs`` takes (every numeric column that is not a run's name or result)."""
     not_hparams = run_columns_besides_hparams()
     hp = [
         c
         for c in runs.columns
         if c not in not_hparams and pd.api.types.is_numeric_dtype(runs[c])
     ]
-    if not hp or runs.empty:
+    return runs.groupby(["method", "variant"], sort=False)[hp].nunique()
+
+
+def grid_axes(runs: pd.DataFrame) -> list[str]:
+    """The hyperparameter columns that take several values within one arm
+    (method, variant), in column order."""
+    if runs.empty:
         return []
-    n = runs.groupby(["method", "variant"], sort=False)[hp].nunique()
-    return [c for c in hp if int(n[c].max()) > 1]
+    n = _distinct_per_arm(runs)
+    return [c for c in n.columns if int(n[c].max()) > 1]
 
 
 def user_grid(
@@ -71,23 +76,17 @@ def user_grid(
 ) -> list[str]:
     """The grid axes of ``runs`` that its experiment's declaration (``arms``) does
     not vary: empty when the experiment's own analysis applies."""
-    declared = declared_axes(arms)
-    axes = grid_axes(runs)
-    if not axes:
+    if runs.empty:
         return []
-    n = runs.groupby(["method", "variant"], sort=False)[axes].nunique()
-    extra: list[str] = []
-    for (method, variant), row in n.iterrows():
-        own = declared.get((method, variant), frozenset())
-        extra += [a for a in axes if int(row[a]) > 1 and a not in own]
-    return [a for a in axes if a in extra]
-
-
-def _se(values: np.ndarray) -> float:
-    values = np.asarray(values, np.float64)
-    if values.size < 2:
-        return math.nan
-    return float(values.std(ddof=1) / np.sqrt(values.size))
+    declared = declared_axes(arms)
+    n = _distinct_per_arm(runs)
+    extra = {
+        c
+        for (method, variant), row in n.iterrows()
+        for c in n.columns
+        if int(row[c]) > 1 and c not in declared.get((method, variant), frozenset())
+    }
+    return [c for c in n.columns if c in extra]
 
 
 def grid_tables(runs: pd.DataFrame, axes: Sequence[str]) -> dict[str, pd.DataFrame]:
@@ -102,13 +101,13 @@ def grid_tables(runs: pd.DataFrame, axes: Sequence[str]) -> dict[str, pd.DataFra
     keys = ["set", "object", "method", "variant", *axes]
     obj = (
         runs.groupby(keys, sort=False)["final_gap"]
-        .agg(n_runs="size", gap_mean="mean", gap_se=_se)
+        .agg(n_runs="size", gap_mean="mean", gap_se=an._se)
         .reset_index()
     )
     set_keys = ["set", "method", "variant", *axes]
     per_set = (
         obj.groupby(set_keys, sort=False)["gap_mean"]
-        .agg(n_objects="size", mean="mean", se=_se)
+        .agg(n_objects="size", mean="mean", se=an._se)
         .reset_index()
     )
     set_rank = {s: i for i, s in enumerate(an.order_sets(runs["set"]))}
