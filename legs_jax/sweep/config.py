@@ -36,8 +36,6 @@ __all__ = [
 RESULTS = "results"
 RUNS = "runs"
 _SLUG_MAX = 80
-# Files that are meshes, not problems (precompute --mesh makes a problem of them).
-_MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf", ".dae", ".urdf")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -127,8 +125,10 @@ def parse_grid(items: Sequence[str] | Mapping[str, Any]) -> dict[str, tuple]:
 def _check_problem_file(f: str) -> None:
     if not Path(f).is_file():
         raise ConfigError(f"--problems: no such file: {f}")
+    from precompute.mesh import _MESH_SUFFIXES  # what precompute --mesh reads
+
     suffix = Path(f).suffix.lower()
-    if suffix in _MESH_SUFFIXES:
+    if suffix in _MESH_SUFFIXES | {".urdf"}:
         raise ConfigError(
             f"--problems takes problem files (.npz); {f} is a mesh: build its "
             f"problem first with `python -m precompute --mesh {f} --units mm` "
