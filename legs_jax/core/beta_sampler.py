@@ -88,8 +88,8 @@ import jax
 import jax.numpy as jnp
 
 from legs_jax.core.sampling import (
+    _beta_inputs,
     _finish_pending,
-    key_words,
     threefry2x32,
 )
 
@@ -207,11 +207,7 @@ def beta_rows_v2(keys: jax.Array, a: jax.Array, b: jax.Array) -> jax.Array:
     Returns:
       [B, N] float32 draws in [0, 1].
     """
-    k0, k1 = key_words(keys)
-    a = jnp.asarray(a, jnp.float32)
-    b = jnp.asarray(b, jnp.float32)
-    a, b = jnp.broadcast_arrays(a, b)
-    return _beta_rows(k0, k1, a, b)
+    return _beta_rows(*_beta_inputs(keys, a, b))
 
 
 def _beta_rows(k0, k1, a, b, *, capacity=None, capacity2=None):

@@ -322,6 +322,16 @@ def _beta_value(k0, k1, i, a, b, ga, gb, boost: bool):
     return jnp.where((ga >= 0.0) & (gb >= 0.0), x, jnp.float32(-1.0))
 
 
+def _beta_inputs(keys: jax.Array, a, b):
+    """(k0, k1, a, b) of a Beta sampler's arguments: the keys' two words, the
+    shapes as float32 broadcast together (every Beta sampler takes them so)."""
+    k0, k1 = key_words(keys)
+    a = jnp.asarray(a, jnp.float32)
+    b = jnp.asarray(b, jnp.float32)
+    a, b = jnp.broadcast_arrays(a, b)
+    return k0, k1, a, b
+
+
 def beta_rows(keys: jax.Array, a: jax.Array, b: jax.Array) -> jax.Array:
     """Exact Beta(a, b) draws, one key per row: Ga / (Ga + Gb).
 
@@ -341,10 +351,7 @@ def beta_rows(keys: jax.Array, a: jax.Array, b: jax.Array) -> jax.Array:
     Returns:
       [B, N] float32 draws in [0, 1].
     """
-    k0, k1 = key_words(keys)
-    a = jnp.asarray(a, jnp.float32)
-    b = jnp.asarray(b, jnp.float32)
-    a, b = jnp.broadcast_arrays(a, b)
+    k0, k1, a, b = _beta_inputs(keys, a, b)
     any_small = jnp.any((a < 1.0) | (b < 1.0))
     return jax.lax.cond(
         any_small,
