@@ -978,9 +978,7 @@ def test_a_mesh_given_as_a_problem_names_the_command_that_builds_one(tmp_path, c
 
 
 def test_a_sweep_runs_from_python(tmp_path, probs, fake_engine):
-    out = sweep.run(
-        problems=[probs[0]],
-        methods=["tql", "legs"],
+    where = dict(
         trials=1,
         rollouts=2,
         horizon=50,
@@ -988,6 +986,7 @@ def test_a_sweep_runs_from_python(tmp_path, probs, fake_engine):
         quiet=True,
         compile_cache="off",
     )
+    out = sweep.run(problems=[probs[0]], methods=["tql", "legs"], **where)
     assert out == tmp_path / "mine"
     runs = pd.read_parquet(out / "main" / "runs.parquet")
     assert set(runs.method) == {"tql", "legs"} and len(runs) == 2 * 2
@@ -997,13 +996,7 @@ def test_a_sweep_runs_from_python(tmp_path, probs, fake_engine):
     # the same configuration again: complete, nothing recomputed
     calls = len(fake_engine)
     again = sweep.run(
-        sweep.SweepConfig(problems=[probs[0]], methods=["tql", "legs"]),
-        trials=1,
-        rollouts=2,
-        horizon=50,
-        out=str(tmp_path / "mine"),
-        quiet=True,
-        compile_cache="off",
+        sweep.SweepConfig(problems=[probs[0]], methods=["tql", "legs"]), **where
     )
     assert again == out and len(fake_engine) == calls
     with pytest.raises(ConfigError, match="unknown method 'leg'.*did you mean legs"):
