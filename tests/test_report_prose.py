@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pandas as pd
 
-from experiments.main import analysis as main_analysis
+from experiments.main import prose
 
 
 def _t1(values):
@@ -24,7 +24,7 @@ BASE = {
 
 
 def test_comparisons_follow_the_numbers():
-    (text, _) = main_analysis._prior_comparisons(_t1(BASE))
+    (text, _) = prose._prior_comparisons(_t1(BASE))
     assert text.startswith("On Dex-Net Adversarial, LEGS (0.100) is below ")
     assert "above BORGES (K_s=100) (0.090)" in text
     assert "within the combined standard error of BORGES (K_s=100))" in text
@@ -32,7 +32,7 @@ def test_comparisons_follow_the_numbers():
     assert "In the paper the lowest row here is BORGES (K_s=2000) and LEGS" in text
     # other numbers, other sentences
     moved = dict(BASE, legs=(0.04, 0.001), borges_100=(0.30, 0.001))
-    (text, _) = main_analysis._prior_comparisons(_t1(moved))
+    (text, _) = prose._prior_comparisons(_t1(moved))
     assert "; above" not in text and "is below Dex-Net" in text
     assert "every difference outside the combined standard error" in text
     assert "lowest compared row, LEGS (0.040), is not above" in text

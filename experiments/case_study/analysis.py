@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from experiments.case_study.sweep import ACTIVE_SET_METHODS, OBJECTS
-from experiments.main.analysis import ARMS
+from experiments.main.tables import ARMS
 from legs_jax.report import analysis as an
 from legs_jax.report.document import fmt, pct
 from legs_jax.report.figures import (

@@ -20,7 +20,7 @@ from typing import Any
 
 import pandas as pd
 
-from experiments.main.analysis import ARMS, PAPER_TABLE1, PAPER_WINS
+from experiments.main.tables import ARMS, PAPER_TABLE1, PAPER_WINS
 from legs_jax.report import analysis as an
 from legs_jax.report.document import Num, Table, fmt, pct, to_markdown, write_pair
 from legs_jax.report.figures import Results, Run, write_csv
