@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import hashlib
 import os
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any
 
-__all__ = ["atomic_write", "git_state", "public_mode"]
+__all__ = ["atomic_write", "git_state", "public_mode", "sha256_file"]
 
 
 def atomic_write(
@@ -34,6 +35,15 @@ def atomic_write(
             os.unlink(tmp)
         raise
     return path
+
+
+def sha256_file(path: str | os.PathLike) -> str:
+    """The SHA-256 of a file's bytes, hex, read a megabyte at a time."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 def public_mode(path: str | os.PathLike) -> None:

@@ -60,7 +60,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from legs_jax._files import atomic_write
+from legs_jax._files import atomic_write, sha256_file
 
 __all__ = [
     "CHUNK_META",
@@ -129,14 +129,6 @@ def config_hash(config: Mapping[str, Any]) -> str:
     """sha256 of the canonical JSON of ``config``."""
     text = json.dumps(_canonical(config), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
-
-
-def sha256_file(path: str | os.PathLike) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 # -------------------------------------------------------------------- atomic I/O

@@ -32,11 +32,12 @@ Weights are saved without pickle: an ``.npz`` of the flattened parameters
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 from pathlib import Path
 
 import numpy as np
+
+from legs_jax._files import sha256_file as file_sha256
 
 from . import depth as _depth
 from .errors import PrecomputeError
@@ -226,10 +227,6 @@ def load_weights(path: Path):
     except Exception as e:  # noqa: BLE001 - any unreadable file is refused
         raise PrecomputeError(f"{path}: not a prior weights file ({e})") from None
     return _unflatten(flat), arch, info
-
-
-def file_sha256(path: Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 # ---------------------------------------------------------------------- scoring

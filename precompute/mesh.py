@@ -61,7 +61,11 @@ from pathlib import Path
 
 import numpy as np
 
+from legs_jax._files import sha256_file as file_sha256
+
 from .errors import PrecomputeError
+from .grasps import OPENING
+from .urdf import read_urdf, urdf_geometry
 
 __all__ = [
     "UNITS",
@@ -119,24 +123,12 @@ class LoadedMesh:
         return np.asarray(self.trimesh().center_mass, np.float64)
 
 
-def file_sha256(path: str | Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def source_sha256(path: str | Path) -> str:
     """What :attr:`LoadedMesh.source_sha256` is for ``path`` without loading it:
     the file's SHA-256, or for a URDF that of its bytes and of the mesh files it
     names."""
     if Path(path).suffix.lower() == ".urdf":
-        import hashlib as _h
-
-        from .urdf import urdf_geometry
-
-        h = _h.sha256(Path(path).read_bytes())
+        h = hashlib.sha256(Path(path).read_bytes())
         for g in urdf_geometry(path):
             if g["kind"] == "mesh":
                 h.update(bytes.fromhex(file_sha256(g["file"])))
@@ -203,8 +195,6 @@ def load_mesh(
         raise _refuse(path, "not a file")
     suffix = path.suffix.lower()
     if suffix == ".urdf":
-        from .urdf import read_urdf
-
         vertices, faces, sha = read_urdf(path, read_mesh_file)
     else:
         vertices, faces, sha = read_mesh_file(path)
@@ -261,8 +251,6 @@ def load_mesh(
     _check_size(path, result, units)
     vertices = np.asarray(result.vertices, np.float64)
     if fit == "egad":
-        from .grasps import OPENING
-
         factor = egad_factor(_obb_extents(result), OPENING)
         vertices = vertices * factor
         scale *= factor

@@ -30,8 +30,8 @@ from typing import Any
 
 import numpy as np
 
+from legs_jax._files import git_state, sha256_file
 from legs_jax._machine import machine
-from legs_jax.results import sha256_file
 
 from . import catalog as _catalog
 from .errors import PrecomputeError
@@ -155,7 +155,6 @@ def pack(
     """Write the shipped set from built problem files (``problems_dir``: the
     default prior's folder, with ``prior-<kind>/`` beside for the others) and its
     ``MANIFEST.json``. Every object of every shipped set must be built."""
-    from legs_jax._files import git_state
     from legs_jax.core import problem as problem_mod
 
     from .grasps import SAMPLES
