@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from .errors import PrecomputeError
 from .mesh import FITS, UNITS
 
 
@@ -100,8 +101,6 @@ def tracked_under(folder: Path) -> list[Path]:
 def guard_out(folder: Path, overwrite: bool, what: str = "--out") -> None:
     """Refuse (one line) to write into ``folder`` when it holds committed files of
     the repository, unless ``overwrite``."""
-    from .errors import PrecomputeError
-
     if overwrite:
         return
     hits = tracked_under(folder)

@@ -22,7 +22,7 @@ PAPER = {"dexnet_adv": (0.56, 0.08), "egad_eval": (0.59, 0.13)}
 def prior_only_rows() -> dict[str, str]:
     """Table I's rows that the prior alone decides, from the methods' declarations:
     method -> its rule (``"greedy"`` or ``"top"``), in registry order."""
-    from legs_jax.core import methods
+    from legs_jax.core import methods  # jax: kept out of precompute's start-up
 
     rows = {m: methods.get(m).card.prior_only for m in methods.names()}
     return {m: rule for m, rule in rows.items() if rule}

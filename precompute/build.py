@@ -37,14 +37,18 @@ from pathlib import Path
 
 import numpy as np
 
+from legs_jax.core import problem as problem_mod  # the one reader of the format
+from legs_jax.core.problem import Problem, load, save, unlearnable_poses
+
 from . import catalog as _catalog
 from . import grasps as G
 from . import learned as _learned
 from . import poses as _poses
 from . import prior as _prior
 from .errors import PrecomputeError
-from .mesh import load_mesh
+from .mesh import file_sha256, load_mesh
 from .raycast import RayCaster, face_pad_normals
+from .urdf import urdf_geometry
 
 __all__ = [
     "CODE_VERSION",
@@ -184,8 +188,6 @@ def build_problem(
     ``on_poses(P)`` is called once the number of poses is known and
     ``on_pose_done()`` after each pose (progress bars).
     """
-    from legs_jax.core.problem import Problem, unlearnable_poses
-
     params = (params or BuildParams()).check()
     mesh = load_mesh(mesh_path, units, fit, scale)
     com = mesh.center_mass
@@ -426,10 +428,6 @@ def reprior(path: Path, info, params: BuildParams) -> bool:
     poses again (seconds an object) and then only renders and scores."""
     import dataclasses as _dc
 
-    from legs_jax.core.problem import load, save
-
-    from .mesh import file_sha256
-
     meta = read_meta(path)
     if meta is None or not isinstance(meta.get("prior"), dict):
         return False
@@ -487,8 +485,6 @@ def _mesh_meta(mesh, set_name: str, scale: float, problem_file) -> dict:
         "scale": float(scale),
     }
     if absolute.suffix.lower() == ".urdf":
-        from .urdf import urdf_geometry
-
         out["urdf"] = [
             {
                 "kind": g["kind"],
@@ -551,8 +547,6 @@ def problem_path(info, out: Path) -> Path:
 def read_meta(path: Path) -> dict | None:
     """The meta dict of a problem file without loading its arrays (None if
     unreadable)."""
-    from legs_jax.core import problem as problem_mod  # the one reader of the format
-
     try:
         return problem_mod.peek(path)["meta"]
     except Exception:  # noqa: BLE001 - any unreadable file is simply out of date
@@ -567,8 +561,6 @@ def is_up_to_date(path: Path, expected_hash: str) -> bool:
 
 
 def expected_hash(info, params: BuildParams) -> str:
-    from .mesh import file_sha256
-
     return build_hash(
         file_sha256(info.mesh_path), info.units, info.name, params, info.fit
     )

@@ -11,21 +11,23 @@ from __future__ import annotations
 
 import numpy as np
 
+from legs_jax.core.problem import load
+
+from . import catalog
+from . import prior as _prior
+from ._cli import subcommand_parser
+from .analysis import PAPER, prior_only_gaps
+from .build import STREAM_PRIOR, BuildParams, _rng, problem_path, problems_dir
 from .errors import PrecomputeError
 
 __all__ = ["main", "set_gaps"]
 
 
 def _load(paths):
-    from legs_jax.core.problem import load
-
     return [load(p) for p in paths]
 
 
 def _noise(problem, seed: int):
-    from . import prior as _prior
-    from .build import STREAM_PRIOR, BuildParams, _rng
-
     params = BuildParams(seed=seed)
     T, P, K = problem.robustness.shape
     eps = np.zeros((T, P, K))
@@ -39,9 +41,6 @@ def _noise(problem, seed: int):
 
 def set_gaps(problems, noise: float, noises=None) -> dict[str, float]:
     """Mean over objects of the per-object (mean over trials) prior-only gaps."""
-    from . import prior as _prior
-    from .analysis import prior_only_gaps
-
     rows = []
     for i, pb in enumerate(problems):
         seed = int(pb.meta.get("params", {}).get("seed", 0))
@@ -62,12 +61,6 @@ def set_gaps(problems, noise: float, noises=None) -> dict[str, float]:
 
 
 def main(argv=None) -> int:
-    from . import catalog
-    from . import prior as _prior
-    from ._cli import subcommand_parser
-    from .analysis import PAPER
-    from .build import problem_path, problems_dir
-
     ap = subcommand_parser("calibrate", __doc__)
     ap.add_argument(
         "--noise",

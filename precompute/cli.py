@@ -7,8 +7,28 @@ import sys
 import time
 from pathlib import Path
 
-from ._cli import add_mesh_size_args, add_overwrite_arg
+from legs_jax.core.problem import describe_unlearnable, load, unlearnable_poses
+
+from . import catalog, problemset
+from ._cli import add_mesh_size_args, add_overwrite_arg, repo_root, tracked_under
+from .build import (
+    BuildParams,
+    build_hash,
+    expected_hash,
+    is_up_to_date,
+    prior_params,
+    problem_path,
+    problems_dir,
+    read_meta,
+    reprior,
+)
+from .calibrate import main as calibrate_main
 from .errors import PrecomputeError
+from .learned import default_prior
+from .mesh import UNITS, check_mesh_kind, source_sha256
+from .report import main as report_main
+from .runner import Task, run_tasks
+from .train_prior import main as train_main
 
 BUILD_HELP = """\
 Build problem files from meshes: stable poses and landing probabilities,
@@ -57,8 +77,6 @@ Other commands:
 
 
 def _build_parser() -> argparse.ArgumentParser:
-    from .build import BuildParams
-
     d = BuildParams()
     p = argparse.ArgumentParser(
         prog="python -m precompute",
@@ -148,20 +166,6 @@ def _build_parser() -> argparse.ArgumentParser:
 def _build(argv) -> int:
     import os
 
-    from . import catalog
-    from .build import (
-        BuildParams,
-        expected_hash,
-        is_up_to_date,
-        prior_params,
-        problem_path,
-        problems_dir,
-        reprior,
-    )
-    from .learned import default_prior
-    from .mesh import UNITS
-    from .runner import Task, run_tasks
-
     a = _build_parser().parse_args(argv)
     weights = str(a.prior_weights) if a.prior_weights is not None else None
     if weights is not None and a.prior is None:
@@ -186,8 +190,6 @@ def _build(argv) -> int:
     if a.jobs is not None and a.jobs < 1:
         raise PrecomputeError(f"--jobs must be at least 1, got {a.jobs}")
     if a.mesh is not None:
-        from .mesh import check_mesh_kind
-
         check_mesh_kind(a.mesh)
         if a.units is None and a.mesh.suffix.lower() == ".urdf":
             a.units = "m"  # a URDF's lengths are metres
@@ -204,9 +206,6 @@ def _build(argv) -> int:
         tasks = [Task(a.mesh, a.units, name, "custom", dest, a.fit, a.scale)]
         skipped = []
         if not a.force and a.mesh.is_file():
-            from .build import build_hash
-            from .mesh import source_sha256
-
             want = build_hash(
                 source_sha256(a.mesh), a.units, name, params, a.fit, scale=a.scale
             )
@@ -279,8 +278,6 @@ def _build(argv) -> int:
 def _guard_files(dests, out: Path, overwrite: bool) -> None:
     """Refuse to write problem files over files committed to the repository (the
     shipped set, say) unless ``overwrite``."""
-    from ._cli import repo_root, tracked_under
-
     if overwrite:
         return
     tracked = {p.resolve() for p in tracked_under(out)}
@@ -297,10 +294,6 @@ def _guard_files(dests, out: Path, overwrite: bool) -> None:
 def _recorded_flags(path: Path) -> list:
     """The unlearnable poses a problem file records (worked out from its arrays
     for a file built before they were recorded)."""
-    from legs_jax.core.problem import load, unlearnable_poses
-
-    from .build import read_meta
-
     meta = read_meta(path) or {}
     if "unlearnable" in meta:
         return list(meta["unlearnable"] or [])
@@ -312,8 +305,6 @@ def _recorded_flags(path: Path) -> list:
 
 def _warn_unlearnable(flagged) -> None:
     """One line per pose that cannot be learned (``flagged``: [(name, flags)])."""
-    from legs_jax.core.problem import describe_unlearnable
-
     for name, flags in flagged:
         for line in describe_unlearnable(flags):
             print(f"warning: {name}: {line}")
@@ -323,16 +314,10 @@ def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
         if argv and argv[0] == "report":
-            from .report import main as report_main
-
             return report_main(argv[1:])
         if argv and argv[0] == "train-prior":
-            from .train_prior import main as train_main
-
             return train_main(argv[1:])
         if argv and argv[0] in ("compare", "ship"):
-            from . import problemset
-
             cmd = (
                 problemset.main_compare
                 if argv[0] == "compare"
@@ -340,8 +325,6 @@ def main(argv=None) -> int:
             )
             return cmd(argv[1:])
         if argv and argv[0] == "calibrate":
-            from .calibrate import main as calibrate_main
-
             return calibrate_main(argv[1:])
         return _build(argv)
     except PrecomputeError as e:

@@ -23,6 +23,7 @@ import numpy as np
 
 from . import depth as _depth
 from .errors import PrecomputeError
+from .gqcnn import CLIP, DEPTH_SCALE, Scorer, file_sha256, load_weights
 
 __all__ = [
     "PRIORS",
@@ -87,8 +88,6 @@ def prior_params(weights: str | Path | None = None) -> dict:
         raise _missing(weights)
     key = (str(path.resolve()), path.stat().st_mtime_ns, path.stat().st_size)
     if key not in _PARAMS:
-        from .gqcnn import CLIP, DEPTH_SCALE, file_sha256, load_weights
-
         if weights is not None:
             load_weights(path)  # a clear error for a file that is not weights
         _PARAMS[key] = {
@@ -113,8 +112,6 @@ def weights_meta(weights: str | Path | None = None) -> dict:
 def scorer(weights: str | Path | None = None):
     """The network of the weights (default: the shipped ones), built once per
     weights file: ``scorer()(image, centers, axes) -> q``."""
-    from .gqcnn import Scorer, load_weights
-
     sha = prior_params(weights)["weights_sha256"]
     if sha not in _SCORERS:
         params, arch, _ = load_weights(_path_of(weights))

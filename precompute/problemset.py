@@ -32,9 +32,14 @@ import numpy as np
 
 from legs_jax._files import git_state, sha256_file
 from legs_jax._machine import machine
+from legs_jax.core import problem as problem_mod
 
 from . import catalog as _catalog
+from ._cli import add_overwrite_arg, guard_out, subcommand_parser
+from .build import problems_dir
 from .errors import PrecomputeError
+from .grasps import SAMPLES
+from .learned import default_prior
 
 __all__ = [
     "GEOMETRY_OBJECTS",
@@ -155,11 +160,6 @@ def pack(
     """Write the shipped set from built problem files (``problems_dir``: the
     default prior's folder, with ``prior-<kind>/`` beside for the others) and its
     ``MANIFEST.json``. Every object of every shipped set must be built."""
-    from legs_jax.core import problem as problem_mod
-
-    from .grasps import SAMPLES
-    from .learned import default_prior
-
     root = set_dir(data_dir)
     files: dict[str, Any] = {}
     todo = []
@@ -213,8 +213,6 @@ def compare_problems(built, shipped, geometry_trials: int) -> dict[str, str]:
 
     q is compared after the 16-bit quantisation the shipped set applies; grasp
     geometry only over the trials the shipped file holds."""
-    from legs_jax.core import problem as problem_mod
-
     diff: dict[str, str] = {}
     # q as the shipped encoding holds it
     q = problem_mod.dequantize_prior(problem_mod.quantize_prior(built.prior))
@@ -251,8 +249,6 @@ def compare(
     """Object -> {array: difference} between the built files in ``problems_dir``
     and the shipped set ({} when every array is equal; a string when the built
     file is absent)."""
-    from legs_jax.core import problem as problem_mod
-
     shipped = paths(names, prior, data_dir=data_dir)
     out: dict[str, dict[str, str] | str] = {}
     for info in _catalog.resolve(list(names), root=data_dir):
@@ -293,9 +289,6 @@ def _names(a) -> list[str]:
 
 def main_compare(argv: Sequence[str]) -> int:
     """``python -m precompute compare``."""
-    from ._cli import subcommand_parser
-    from .build import problems_dir
-
     ap = subcommand_parser(
         "compare",
         "Compare problem files built from the meshes on this machine "
@@ -320,9 +313,6 @@ def main_compare(argv: Sequence[str]) -> int:
 
 def main_ship(argv: Sequence[str]) -> int:
     """``python -m precompute ship``."""
-    from ._cli import subcommand_parser
-    from .build import problems_dir
-
     ap = subcommand_parser(
         "ship",
         "Write the shipped problem set (data/problemset, its "
@@ -333,7 +323,6 @@ def main_ship(argv: Sequence[str]) -> int:
         "committed set needs --overwrite.",
     )
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
-    from ._cli import add_overwrite_arg, guard_out
 
     add_overwrite_arg(ap, "data/problemset (the shipped set)")
     a = ap.parse_args(list(argv))

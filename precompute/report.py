@@ -48,7 +48,21 @@ from pathlib import Path
 
 import numpy as np
 
+from legs_jax.core.problem import (
+    ProblemFileError,
+    describe_unlearnable,
+    load,
+    unlearnable_poses,
+)
+from legs_jax.core.problem import prior_kind as of_meta
+from legs_jax.report import render
+
+from . import catalog
+from ._cli import add_overwrite_arg, guard_out, subcommand_parser
+from .analysis import PAPER, prior_only_gaps, prior_only_rows
+from .build import problem_path, problems_dir
 from .errors import PrecomputeError
+from .mesh import load_mesh
 
 __all__ = ["main", "object_row", "set_rows"]
 
@@ -67,8 +81,6 @@ def _fmt_list(values, digits: int) -> str:
 
 def prior_kind(pb) -> str:
     """The prior a problem file carries (:func:`legs_jax.core.problem.prior_kind`)."""
-    from legs_jax.core.problem import prior_kind as of_meta
-
     return of_meta(pb.meta)
 
 
@@ -87,10 +99,6 @@ def roc_auc(score: np.ndarray, positive: np.ndarray) -> float:
 
 def object_row(pb, set_name: str) -> dict:
     """Summary statistics of one problem (a :class:`legs_jax.core.problem.Problem`)."""
-    from legs_jax.core.problem import unlearnable_poses
-
-    from .analysis import prior_only_gaps, prior_only_rows
-
     P = int(pb.pose_valid.sum())
     valid = pb.valid[:, :P]
     p = np.where(valid, pb.robustness[:, :P], 0.0).astype(np.float64)
@@ -126,8 +134,6 @@ def object_row(pb, set_name: str) -> dict:
 def set_rows(rows: Sequence[dict]) -> list[dict]:
     """Per set: the two prior-only gaps, mean ± SE across objects, beside the
     paper's."""
-    from .analysis import PAPER, prior_only_rows
-
     out = []
     for set_name in PAPER:
         sel = [r for r in rows if r["set"] == set_name]
@@ -169,8 +175,6 @@ def _write_csv(rows: Sequence[dict], path: Path) -> Path:
 
 
 def _sets_markdown(sets: Sequence[dict]) -> str:
-    from .analysis import prior_only_rows
-
     label = {"dexnet_adv": "Dex-Net adversarial", "egad_eval": "EGAD evaluation"}
     names = {
         "synthetic": "synthetic GQ-CNN stand-in",
@@ -244,8 +248,6 @@ def _custom_mesh(pb, problem_file: Path):
     found from what the problem file records; None when it cannot be found."""
     import trimesh
 
-    from .mesh import load_mesh
-
     meta = pb.meta or {}
     cands = []
     if meta.get("mesh_file"):
@@ -270,8 +272,6 @@ def _custom_mesh(pb, problem_file: Path):
 def pose_figure(pb, info, path: Path, panel: int = 150) -> Path:
     """The object in each stable pose with the best grasps of trial 0."""
     from matplotlib.collections import LineCollection
-
-    from legs_jax.report import render
 
     fixed_scale = None
     if getattr(info, "set", None) == "custom":
@@ -399,8 +399,6 @@ def reliability_figure(counts: dict, priors: dict, path: Path) -> Path:
 
 # ------------------------------------------------------------------------- CLI
 def build_parser() -> argparse.ArgumentParser:
-    from ._cli import subcommand_parser
-
     ap = subcommand_parser("report", __doc__)
     ap.add_argument(
         "--out",
@@ -410,7 +408,6 @@ def build_parser() -> argparse.ArgumentParser:
         "object is built and reported, the committed results; otherwise "
         "runs/precompute-report under the current folder)",
     )
-    from ._cli import add_overwrite_arg
 
     add_overwrite_arg(ap, "--out")
     ap.add_argument(
@@ -456,16 +453,6 @@ def _custom_problems(folders) -> list:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from legs_jax.core.problem import (
-        ProblemFileError,
-        describe_unlearnable,
-        load,
-        unlearnable_poses,
-    )
-
-    from . import catalog
-    from .build import problem_path, problems_dir
-
     a = build_parser().parse_args(argv)
     root = a.problems if a.problems is not None else problems_dir()
     names = list(a.objects or [])
@@ -498,7 +485,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         a.out = FULL_OUT if full else PART_OUT
     if not full:
         # a part of the catalogue never replaces the committed full report
-        from ._cli import guard_out
 
         guard_out(a.out, a.overwrite)
 

@@ -11,6 +11,10 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from legs_jax.core.problem import save
+
+from . import build as _build
+from . import catalog
 from .errors import PrecomputeError
 
 __all__ = ["Task", "build_many", "ensure", "run_tasks"]
@@ -31,10 +35,8 @@ class Task:
 
 def build_many(infos, *, out: Path, params, jobs: int = 1, progress: bool = True):
     """Build the problem files of catalogue objects ``infos`` into ``out``."""
-    from .build import problem_path
-
     tasks = [
-        Task(i.mesh_path, i.units, i.name, i.set, problem_path(i, out), i.fit)
+        Task(i.mesh_path, i.units, i.name, i.set, _build.problem_path(i, out), i.fit)
         for i in infos
     ]
     return run_tasks(tasks, params=params, jobs=jobs, progress=progress)
@@ -53,17 +55,17 @@ def ensure(
     (or the user cache when the data folder is read-only; a prior other than the
     default in a subfolder, :func:`precompute.build.problems_dir`); ``params`` a
     :class:`precompute.build.BuildParams` (default: the defaults)."""
-    from . import catalog
-    from .build import BuildParams, out_of_date, problem_path, problems_dir, reprior
-
     root = Path(data_dir) if data_dir is not None else None
-    params = (params or BuildParams()).check()
-    out = problems_dir(root, params.prior)
+    params = (params or _build.BuildParams()).check()
+    out = _build.problems_dir(root, params.prior)
     paths = {
-        i.name: problem_path(i, out) for i in catalog.resolve(list(names), root=root)
+        i.name: _build.problem_path(i, out)
+        for i in catalog.resolve(list(names), root=root)
     }
-    todo = out_of_date(names, data_dir=root, params=params)
-    todo = [i for i in todo if not reprior(problem_path(i, out), i, params)]
+    todo = _build.out_of_date(names, data_dir=root, params=params)
+    todo = [
+        i for i in todo if not _build.reprior(_build.problem_path(i, out), i, params)
+    ]
     if todo:
         build_many(
             todo,
@@ -76,10 +78,6 @@ def ensure(
 
 
 def _run_one(task: Task, params, messages=None) -> tuple:
-    from legs_jax.core.problem import save
-
-    from .build import build_problem
-
     start = time.perf_counter()
 
     def on_poses(n):
@@ -90,7 +88,7 @@ def _run_one(task: Task, params, messages=None) -> tuple:
         if messages is not None:
             messages.put(("pose", task.name, 1))
 
-    problem = build_problem(
+    problem = _build.build_problem(
         task.mesh_path,
         units=task.units,
         fit=task.fit,

@@ -39,7 +39,13 @@ from pathlib import Path
 
 import numpy as np
 
+from legs_jax._files import git_state
+
+from ._cli import guard_out
 from .errors import PrecomputeError
+from .gqcnn import Arch, Cropper, init_params, make_model, save_weights
+from .shapes import generate
+from .trainset import label_shape
 
 __all__ = ["TrainConfig", "QUICK", "default_out", "metrics", "train", "main"]
 
@@ -93,9 +99,6 @@ def shipped_out() -> Path:
 
 
 def _label_one(args):
-    from .shapes import generate
-    from .trainset import label_shape
-
     index, cfg = args
     shape = generate(index, cfg.seed)
     ex = label_shape(
@@ -159,8 +162,6 @@ def split_objects(n: int, seed: int) -> dict[str, np.ndarray]:
 def make_arrays(labelled, objects: np.ndarray, progress: bool, desc: str):
     """(x [N, S, S] float16, z [N] float32, p [N] float32, obj [N]) of the objects."""
     from tqdm import tqdm
-
-    from .gqcnn import Cropper
 
     cropper = Cropper()
     xs, zs, ps, os_ = [], [], [], []
@@ -288,8 +289,6 @@ def train(cfg: TrainConfig, data: dict, arch=None, progress: bool = True):
     import optax
     from tqdm import tqdm
 
-    from .gqcnn import Arch, init_params, make_model
-
     arch = arch or Arch()
     model = make_model(arch)
     ss = np.random.SeedSequence([cfg.seed, STREAM_INIT])
@@ -369,8 +368,6 @@ def train(cfg: TrainConfig, data: dict, arch=None, progress: bool = True):
 
 
 def _commit() -> str:
-    from legs_jax._files import git_state
-
     state = git_state()
     if state["commit"] is None:
         return "unknown (not a git checkout)"
@@ -503,8 +500,6 @@ def _parser() -> argparse.ArgumentParser:
 
 def run(cfg: TrainConfig, out: Path, jobs: int, progress: bool = True) -> dict:
     """The whole pipeline (module docstring); returns metrics.json's content."""
-    from .gqcnn import save_weights
-
     cfg = cfg.check()
     t0 = time.perf_counter()
     labelled = label_all(cfg, jobs, progress)
@@ -517,8 +512,6 @@ def run(cfg: TrainConfig, out: Path, jobs: int, progress: bool = True) -> dict:
     params, arch, hist = train(cfg, data, progress=progress)
     t3 = time.perf_counter()
     import jax
-
-    from .gqcnn import make_model
 
     apply = jax.jit(make_model(arch).apply)
     m = {
@@ -615,8 +608,6 @@ def main(argv=None) -> int:
 def _guard(out: Path, overwrite: bool) -> None:
     """Refuse to replace the shipped weights (or any committed file) unless
     ``overwrite``."""
-    from ._cli import guard_out
-
     shipped = shipped_out()
     if not overwrite and Path(out).resolve() == shipped.resolve():
         if (shipped / "weights.npz").exists():
