@@ -25,6 +25,8 @@ import importlib
 from pathlib import Path
 from types import ModuleType, SimpleNamespace
 
+from legs_jax.report.figures import Experiment
+
 __all__ = [
     "DEFAULTS",
     "EXPERIMENTS",
@@ -98,8 +100,6 @@ def for_report() -> list:
     """Every experiment as the report takes it
     (:class:`legs_jax.report.figures.Experiment`: name, declared arms, the steps
     and sections of its ``analysis.py``), in ``--all``'s order."""
-    from legs_jax.report.figures import Experiment
-
     out = []
     for name in EXPERIMENTS:
         mod = analysis(name)

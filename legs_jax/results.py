@@ -85,7 +85,7 @@ def hparam_columns() -> tuple[str, ...]:
     """The hyperparameter columns, in this order, of every table that carries
     them: those this package's methods declare
     (:func:`legs_jax.core.methods.column_defaults`)."""
-    from legs_jax.core import methods
+    from legs_jax.core import methods  # jax: kept out of reading and writing tables
 
     return tuple(methods.column_defaults())
 
@@ -94,7 +94,7 @@ def hparam_columns() -> tuple[str, ...]:
 def integer_hparams() -> frozenset[str]:
     """The hyperparameters a method of this package declares integer (their
     columns are int64, the others float64)."""
-    from legs_jax.core import methods
+    from legs_jax.core import methods  # jax: kept out of reading and writing tables
 
     return frozenset(
         name

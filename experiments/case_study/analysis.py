@@ -14,6 +14,7 @@ import numpy as np
 from experiments.case_study.sweep import ACTIVE_SET_METHODS, OBJECTS
 from experiments.main.tables import ARMS
 from legs_jax.report import analysis as an
+from legs_jax.report import render
 from legs_jax.report.document import fmt, pct
 from legs_jax.report.figures import (
     MissingResults,
@@ -101,8 +102,6 @@ def _draw_object(
 ) -> dict[str, Any]:
     """Draw the object in a stable pose into ``ax``; returns what was drawn
     (``pose``, ``notes``). ``grasps(pb, pose, rendering, ax)`` draws on top."""
-    from legs_jax.report import render
-
     ax.set_axis_off()
     info: dict[str, Any] = {"pose": pose, "notes": []}
     mesh, why_mesh = data.mesh(set_, name)
@@ -410,8 +409,6 @@ def active_set_figure(
         ids = members.loc[members["step"] == step, "grasp"].to_numpy(int)
 
         def draw(pb, p, img, ax):
-            from legs_jax.report import render
-
             valid = np.flatnonzero(pb.valid[0, p])
             rng = np.random.default_rng(0)
             back = rng.choice(valid, size=min(300, len(valid)), replace=False)

@@ -29,6 +29,7 @@ import numpy as np
 import pandas as pd
 
 from experiments.early_stopping.sweep import RHO_MIN  # Fig. 4's thresholds
+from legs_jax.core import problem
 from legs_jax.report import analysis as an
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -63,8 +64,7 @@ def study(set_name: str, trials: int, rollouts: int, horizon: int, progress: boo
     """Per object and variant: the checks (:func:`checks_frame`)."""
     from tqdm.auto import tqdm
 
-    from legs_jax import runtime
-    from legs_jax.core import problem
+    from legs_jax import runtime  # jax: only when the study runs, not for --help
 
     files = sorted((ROOT / "data" / "problemset" / set_name).glob("*.npz"))
     if not files:

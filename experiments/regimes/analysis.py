@@ -18,6 +18,7 @@ import pandas as pd
 
 from experiments.regimes import sweep as decl
 from legs_jax import families
+from legs_jax.core import problem as problem_mod
 from legs_jax.report.document import Num, Table, fmt, to_markdown, write_pair
 from legs_jax.report.figures import MissingResults, Run, pyplot, save_figure, write_csv
 
@@ -91,8 +92,6 @@ def _family_of(name: str) -> dict[str, Any] | None:
 def generated_features(run: Run, names: Sequence[str]) -> pd.DataFrame:
     """Features of the generated problems: from the files the sweep ran (the
     objects table), else regenerated from the declaration."""
-    from legs_jax.core import problem as problem_mod
-
     files = {}
     if run.res.has(NAME, "objects"):
         obj = run.res.table(NAME, "objects")

@@ -100,6 +100,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from legs_jax.core import methods
 from legs_jax.core.constants import DELTA_STOP, NUM_DIRICHLET_SAMPLES
 from legs_jax.core.methods.base import Config
 from legs_jax.core.problem import Problem
@@ -156,8 +157,6 @@ def check_hparams(
 
     Raises :class:`ConfigError` with a one-line message (see the module docstring).
     """
-    from legs_jax.core import methods
-
     m = methods.resolve(method)
     for name, value in (hparams or {}).items():
         if isinstance(value, (str, bytes)) or np.ndim(value) != 0:
@@ -258,8 +257,6 @@ def top_truth_choice(problem: Problem, trial: int, size: int) -> np.ndarray:
 
 def constant_policy(problem: Problem, method: Any, trial: int) -> np.ndarray:
     """[P] fixed grasp per pose of a constant row (a method that does not learn)."""
-    from legs_jax.core import methods
-
     m = methods.resolve(method)
     twin = m.card.reference(problem, trial, m.defaults()) if m.card.reference else None
     if m.learns or getattr(twin, "choice", None) is None:
@@ -587,8 +584,6 @@ def run_rollout(
 def _method(method: Any):
     """The registered method (a name, ``module:ATTRIBUTE`` or a Method) that has
     a NumPy twin."""
-    from legs_jax.core import methods
-
     m = methods.resolve(method)
     if m.card.reference is None:
         raise ConfigError(f"method {m.name} has no NumPy reference")

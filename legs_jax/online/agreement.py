@@ -30,7 +30,9 @@ import numpy as np
 from scipy import stats
 
 from legs_jax import runtime
+from legs_jax.core import problem as problem_mod
 from legs_jax.core.problem import stack
+from legs_jax.online.errors import InputError
 from legs_jax.online.outputs import is_results, out_file, refuse_tracked
 from legs_jax.online.robot import World
 from legs_jax.online.simulate import Simulation, save_figure
@@ -168,9 +170,6 @@ def _fmt(x) -> str:
 def main(args) -> int:
     """``python -m legs_jax.online agreement``: the table and figure."""
     from tqdm.auto import tqdm
-
-    from legs_jax.core import problem as problem_mod
-    from legs_jax.online.errors import InputError
 
     try:
         pb = problem_mod.load(args.problem)

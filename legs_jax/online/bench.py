@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from legs_jax.core import methods
 from legs_jax.online import recognition as R
 from legs_jax.online import sampler as S
 from legs_jax.online.camera import check_depth
@@ -120,8 +121,6 @@ def time_first_requests(method: str, depth, intr: dict, cache: str) -> dict:
 def _timed_methods() -> tuple[str, str]:
     """The default method and the first dense method of the benchmark's table:
     an active set of k slots against all K grasps."""
-    from legs_jax.core import methods
-
     dense = [
         m
         for m in methods.names()

@@ -6,12 +6,29 @@ import argparse
 import sys
 from pathlib import Path
 
+import precompute
 from legs_jax._cli import compile_cache_arg, quiet_arg
 from legs_jax._jax_cache import compile_cache
+from legs_jax.core import methods
+from legs_jax.core import problem as problem_mod
 from legs_jax.errors import ConfigError
+from legs_jax.online._adapter import default_method, method_names
+from legs_jax.online.agreement import main as agreement_main
+from legs_jax.online.bench import main as bench_main
+from legs_jax.online.camera import default_camera_pose
 from legs_jax.online.errors import InputError, OrderError, StateError
+from legs_jax.online.outputs import refuse_tracked
+from legs_jax.online.protocol import refuse, serve
+from legs_jax.online.recognition_table import SHIPPED as SHIPPED_TABLE
+from legs_jax.online.recognition_table import main as table_main
+from legs_jax.online.robot import World
 from legs_jax.online.sampler import DEFAULT_PRIOR, PRIORS
+from legs_jax.online.session import NO_SUCCESS_ATTEMPTS, ONE_POSE_STEPS, Session
+from legs_jax.online.simulate import Simulation
+from precompute import problemset
 from precompute._cli import add_mesh_size_args
+from precompute.errors import PrecomputeError
+from precompute.mesh import _MESH_SUFFIXES
 
 _DESCRIPTION = """\
 LEGS on a robot: an online exploration session over depth images.
@@ -42,8 +59,6 @@ Run "python -m legs_jax.online COMMAND --help" for a command's options.
 
 
 def _session_args(p: argparse.ArgumentParser) -> None:
-    from legs_jax.online._adapter import default_method, method_names
-
     p.add_argument(
         "--method",
         default=default_method(),
@@ -104,8 +119,6 @@ def _hparams(items, method: str) -> dict:
     out = {}
     integer: set[str] = set()
     if items:
-        from legs_jax.core import methods
-
         ranges = methods.resolve(method).ranges
         integer = {name for name, rng in ranges.items() if rng.integer}
     for item in items:
@@ -127,7 +140,6 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    from legs_jax.online.session import NO_SUCCESS_ATTEMPTS, ONE_POSE_STEPS
 
     p = sub.add_parser(
         "serve",
@@ -221,8 +233,6 @@ def build_parser() -> argparse.ArgumentParser:
     _session_args(p)
     _cache_arg(p)
 
-    from legs_jax.online.recognition_table import SHIPPED as SHIPPED_TABLE
-
     p = sub.add_parser(
         "recognition-table",
         help="pose recognition on simulated views",
@@ -266,7 +276,6 @@ def build_parser() -> argparse.ArgumentParser:
         "gaps), and a figure. Optionally also sessions with recognition.",
     )
     p.add_argument("--problem", type=Path, required=True, help="problem file (.npz)")
-    from legs_jax.online._adapter import default_method
 
     p.add_argument(
         "--method", default=default_method(), help=f"method ({default_method()})"
@@ -323,17 +332,11 @@ def main(argv=None) -> int:
             compile_cache(args.compile_cache)
             return _simulate(args)
         if args.command == "recognition-table":
-            from legs_jax.online.recognition_table import main as table_main
-
             return table_main(args)
         if args.command == "agreement":
-            from legs_jax.online.agreement import main as agreement_main
-
             compile_cache(args.compile_cache)
             return agreement_main(args)
         if args.command == "bench":
-            from legs_jax.online.bench import main as bench_main
-
             return bench_main(args)
     except (InputError, OrderError, StateError, ConfigError) as e:
         print(f"error: {e}", file=sys.stderr)
@@ -346,11 +349,6 @@ def main(argv=None) -> int:
 
 def _serve(args) -> int:
     import numpy as np
-
-    from legs_jax.online.camera import default_camera_pose
-    from legs_jax.online.outputs import refuse_tracked
-    from legs_jax.online.protocol import refuse, serve
-    from legs_jax.online.session import Session
 
     try:
         refuse_tracked([args.dir], args.overwrite)
@@ -384,13 +382,8 @@ def _serve(args) -> int:
 def _find_problem(name: str):
     """The problem file of catalogue object ``name``: built on this machine
     (``python -m precompute``) when there is one, else the shipped one, else None."""
-    import precompute
-    from precompute import problemset
-    from precompute.build import problem_path, problems_dir
-    from precompute.errors import PrecomputeError
-
     info = precompute.catalog.lookup(name)
-    path = problem_path(info, problems_dir())
+    path = precompute.build.problem_path(info, precompute.build.problems_dir())
     if path.is_file():
         return path
     try:
@@ -425,13 +418,6 @@ def _same_prior(session, prior: str | None) -> None:
 
 
 def _simulate(args) -> int:
-    from legs_jax.core import problem as problem_mod
-    from legs_jax.online.outputs import refuse_tracked
-    from legs_jax.online.robot import World
-    from legs_jax.online.simulate import Simulation
-    from precompute.errors import PrecomputeError
-    from precompute.mesh import _MESH_SUFFIXES
-
     if args.steps is not None and args.steps < 1:
         raise InputError(f"--steps must be at least 1, got {args.steps}")
     if args.eval_every is not None and args.eval_every < 1:

@@ -21,6 +21,7 @@ import numpy as np
 
 from legs_jax.online import recognition as R
 from legs_jax.online.camera import check_depth
+from legs_jax.online.errors import InputError
 from legs_jax.online.outputs import is_results, out_file, refuse_tracked
 from legs_jax.online.robot import SimRobot, World
 
@@ -150,8 +151,6 @@ def table_markdown(
 
 def main(args) -> int:
     from tqdm.auto import tqdm
-
-    from legs_jax.online.errors import InputError
 
     names = args.objects or list(DEXNET_OBJECTS)
     if args.views < 1:

@@ -21,9 +21,14 @@ import functools
 
 import numpy as np
 
+import precompute
 from legs_jax.online.camera import Intrinsics, default_camera_pose
 from legs_jax.online.recognition import yaw_matrix
 from precompute import grasps as G
+from precompute import poses as _poses
+from precompute.catalog import data_dir
+from precompute.errors import PrecomputeError
+from precompute.mesh import _MESH_SUFFIXES, file_sha256, load_mesh
 from precompute.raycast import RayCaster
 
 __all__ = ["DEFAULT_INTRINSICS", "NOISE", "DROPOUT", "World", "SimRobot"]
@@ -55,8 +60,6 @@ class World:
     @classmethod
     def from_mesh(cls, name: str) -> World:
         """Poses of catalogue object ``name`` computed from its mesh."""
-        import precompute
-
         info = precompute.catalog.lookup(name)
         return cls.from_mesh_file(info.mesh_path, info.units, info.fit, name=name)
 
@@ -68,9 +71,6 @@ class World:
         ``precompute --mesh`` takes them) computed from the mesh; named after the
         file unless ``name`` is given."""
         from pathlib import Path
-
-        from precompute import poses as _poses
-        from precompute.mesh import load_mesh
 
         mesh = load_mesh(path, units, fit)
         hull = _poses.hull_model(mesh.vertices, mesh.faces, mesh.center_mass)
@@ -93,10 +93,6 @@ class World:
         from (see :func:`_find_mesh`); the mesh must be the one the problem was
         built from (its SHA-256, when the problem records it)."""
         from pathlib import Path
-
-        import precompute
-        from precompute.errors import PrecomputeError
-        from precompute.mesh import file_sha256, load_mesh
 
         meta = problem.meta
         units, fit = meta.get("units", "m"), meta.get("fit", "none")
@@ -162,10 +158,6 @@ def _find_mesh(problem, problem_path=None):
     folders. A candidate whose SHA-256 differs from the recorded one is passed
     over while another matches."""
     from pathlib import Path
-
-    from precompute.catalog import data_dir
-    from precompute.errors import PrecomputeError
-    from precompute.mesh import _MESH_SUFFIXES, file_sha256
 
     meta = problem.meta
     recorded = [meta["mesh_file"]] if isinstance(meta.get("mesh_file"), str) else []

@@ -48,7 +48,9 @@ from scipy import ndimage
 
 from legs_jax.online.camera import Intrinsics, deproject
 from legs_jax.online.recognition import MIN_HEIGHT
+from precompute import depth as D
 from precompute import grasps as G
+from precompute import learned
 
 __all__ = [
     "DEFAULT_PRIOR",
@@ -111,8 +113,6 @@ def prior_view(view: View):
     would see it (a :class:`precompute.depth.DepthImage` of 4 mm pixels, the
     camera 0.7 m above the object) and the table-frame offset [3] (the visible
     object's centroid in x and y) to subtract from grasp centres for it."""
-    from precompute import depth as D
-
     pts = deproject(view.depth, view.intrinsics, view.camera_pose).reshape(-1, 3)
     pts = pts[np.all(np.isfinite(pts), axis=1)]
     obj = pts[:, 2] > MIN_HEIGHT
@@ -152,8 +152,6 @@ def prior_view(view: View):
 def learned_prior(grasps: Grasps, view: View) -> np.ndarray:
     """[K] q of table-frame grasps from the learned prior's network, seen in
     ``view`` (:func:`prior_view`); the weights :mod:`precompute.learned` ships."""
-    from precompute import learned
-
     if len(grasps) == 0:
         return np.zeros(0)
     image, offset = prior_view(view)
@@ -170,8 +168,6 @@ def default_prior(name: str = DEFAULT_PRIOR):
     """The prior named ``name`` (a key of :data:`PRIORS`); the learned prior
     falls back to the geometric stand-in, with a warning that says so, where
     its weights are missing."""
-    from precompute import learned
-
     if name not in PRIORS:
         raise ValueError(f"unknown prior {name!r}; one of {', '.join(PRIORS)}")
     if PRIORS[name] is learned_prior and not learned.available():

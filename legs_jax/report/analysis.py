@@ -67,7 +67,7 @@ class Arms:
     @property
     def methods(self) -> tuple[str, ...]:
         """Every method in table order: ``order``, then the registry's others."""
-        from legs_jax.core import methods
+        from legs_jax.core import methods  # jax: kept out of the figures' start-up
 
         return tuple(self.order) + tuple(
             m for m in methods.names() if m not in self.order
@@ -79,7 +79,7 @@ class Arms:
         experiment declares, but not an oracle row (the K=100 upper bound);
         extra rows (Bayes-UCB, a user's method) are shown but do not compete, so
         the counts keep the paper's definition."""
-        from legs_jax.core import methods
+        from legs_jax.core import methods  # jax: kept out of the figures' start-up
 
         return tuple(
             m
@@ -93,7 +93,7 @@ class Arms:
         """``label``, ``short_label`` and ``style`` of an arm: a declared
         variant's, else its method's (:mod:`legs_jax.core.methods`); empty for an
         unknown method."""
-        from legs_jax.core import methods
+        from legs_jax.core import methods  # jax: kept out of the figures' start-up
 
         if (method, variant) in self.variants:
             return dict(self.variants[(method, variant)])
@@ -168,7 +168,7 @@ class AnalysisError(ValueError):
 # ------------------------------------------------------------------------ helpers
 def oracle_methods() -> tuple[str, ...]:
     """The registered methods that are oracle rows (never compared or bolded)."""
-    from legs_jax.core import methods
+    from legs_jax.core import methods  # jax: kept out of the figures' start-up
 
     return tuple(m for m in methods.names() if methods.get(m).card.oracle)
 

@@ -15,6 +15,7 @@ import numpy as np
 import pandas as pd
 
 from legs_jax._files import atomic_write
+from legs_jax.report import analysis as an
 
 __all__ = [
     "Appendix",
@@ -448,8 +449,6 @@ def build_report(ctx: Mapping) -> str:
     """REPORT.md from what ``legs_jax.report.figures.generate`` computed (``ctx``): the
     results used (of the experiments ``ctx["experiments"]`` names), then the
     sections ``ctx["sections"]`` (position, function of ``ctx``), by position."""
-    from legs_jax.report import analysis as an
-
     L: list[str] = [
         "# Reproduction report: LEGS (Fu et al., ICRA 2022)",
         "",

@@ -39,9 +39,10 @@ from typing import Any, NamedTuple
 
 import pandas as pd
 
+from legs_jax.core import problem as problem_mod
 from legs_jax.report import analysis as an
 from legs_jax.report import document as rp
-from legs_jax.report import grid
+from legs_jax.report import grid, render
 from legs_jax.report.plotting import pyplot, save_figure, write_csv
 
 __all__ = [
@@ -166,8 +167,6 @@ class ObjectData:
         """(Problem or None, reason)."""
         key = f"{set_}/{name}"
         if key not in self._problems:
-            from legs_jax.core import problem as problem_mod
-
             # the file the results were made from first, then the shipped set's,
             # then a build's
             candidates = []
@@ -197,8 +196,6 @@ class ObjectData:
         """(trimesh.Trimesh or None, reason)."""
         key = f"{set_}/{name}"
         if key not in self._meshes:
-            from legs_jax.report import render
-
             path = self.root / "meshes" / set_ / f"{name}.obj"
             if not path.is_file():
                 self._meshes[key] = (None, f"mesh {path} missing")

@@ -25,9 +25,12 @@ import functools
 
 import numpy as np
 
-from legs_jax.core.methods.base import Method, check_declaration
+from legs_jax.core import engine, keys
+from legs_jax.core.methods.base import Config, Ctx, Method, check_declaration
+from legs_jax.core.problem import stack
 from legs_jax.errors import ConfigError
 from legs_jax.runtime import rollouts as runner
+from legs_jax.synthetic import make_problem
 
 __all__ = ["check"]
 
@@ -38,10 +41,6 @@ def _setup():
     padded to 4, 150 grasps padded to 160, 30 % invalid grasps, 2 trials."""
     import jax
     import jax.numpy as jnp
-
-    from legs_jax.core import engine
-    from legs_jax.core.problem import stack
-    from legs_jax.synthetic import make_problem
 
     pb = make_problem(
         5, num_poses=3, num_grasps=150, num_trials=2, invalid_fraction=0.3,
@@ -68,9 +67,6 @@ def check(method: Method, horizon: int = 120, rollouts: int = 8) -> None:
     unless it conforms (module docstring)."""
     import jax
     import jax.numpy as jnp
-
-    from legs_jax.core import keys
-    from legs_jax.core.methods.base import Config
 
     check_declaration(method)
     tables = _setup()
@@ -165,8 +161,6 @@ def _prune_keeps_other_poses(method: Method, cfg, tables, ot, hp) -> None:
     (:func:`legs_jax.core.engine.agent_step`)."""
     import jax
     import jax.numpy as jnp
-
-    from legs_jax.core.methods.base import Ctx
 
     B, P = ot.shape[0], cfg.num_poses
     ctx = Ctx(tables, ot, hp)

@@ -12,8 +12,8 @@ from legs_jax.core.problem import ProblemFileError
 from legs_jax.errors import ConfigError
 from legs_jax.sweep.config import SweepConfig, validate
 from legs_jax.sweep.driver import run_validated
-from legs_jax.sweep.experiments import _precompute_errors
 from legs_jax.sweep.plan import SMOKE, SweepError
+from precompute.errors import PrecomputeError
 
 # ====================================================================== arguments
 EXPERIMENTS = experiments.EXPERIMENTS
@@ -185,7 +185,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         run_validated(config)
     except KeyboardInterrupt:
         return 130
-    except (SweepError, ConfigError, ProblemFileError, *_precompute_errors()) as e:
+    except (SweepError, ConfigError, ProblemFileError, PrecomputeError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     return 0

@@ -20,6 +20,7 @@ from typing import Any
 
 import experiments
 from legs_jax.errors import ConfigError
+from precompute.mesh import _MESH_SUFFIXES  # what precompute --mesh reads
 
 __all__ = [
     "RESULTS",
@@ -125,7 +126,6 @@ def parse_grid(items: Sequence[str] | Mapping[str, Any]) -> dict[str, tuple]:
 def _check_problem_file(f: str) -> None:
     if not Path(f).is_file():
         raise ConfigError(f"--problems: no such file: {f}")
-    from precompute.mesh import _MESH_SUFFIXES  # what precompute --mesh reads
 
     suffix = Path(f).suffix.lower()
     if suffix in _MESH_SUFFIXES | {".urdf"}:
@@ -164,7 +164,7 @@ def validate(c: SweepConfig) -> SweepConfig:
     methods_ = _split_commas(c.methods)
     if methods_ is not None and not methods_:
         raise ConfigError("--methods: no method named")
-    from legs_jax.core import methods
+    from legs_jax.core import methods  # jax: not at sweep start-up
 
     known = methods.names()
     for m in methods_ or ():

@@ -28,10 +28,11 @@ from typing import Any
 import experiments
 from legs_jax import results as res
 from legs_jax._jax_cache import compile_cache
+from legs_jax.core import problem as problem_mod
 from legs_jax.sweep import execute as _execute
 from legs_jax.sweep.config import RESULTS, SweepConfig, default_out, validate
 from legs_jax.sweep.execute import finish_experiment, run_experiment
-from legs_jax.sweep.experiments import _catalog, _experiment_plan, _ProblemsMissing
+from legs_jax.sweep.experiments import _experiment_plan, _ProblemsMissing
 from legs_jax.sweep.hosts import (
     _barrier,
     _devices,
@@ -49,6 +50,7 @@ from legs_jax.sweep.store import (
     _prepare_dir,
     _warn_damaged_tables,
 )
+from precompute import catalog
 
 __all__ = ["run", "run_validated"]
 
@@ -114,7 +116,6 @@ def _run(c: SweepConfig) -> Path:
         dist = _init_distributed(c)
         devices = _devices(c.devices)
         compile_cache(c.compile_cache)
-        catalog = _catalog()
         plans = []
         for name in names:
             own_prior = getattr(experiments.get(name), "PRIOR", None)
@@ -228,8 +229,8 @@ def _check_user_methods(plans: Sequence[ExperimentPlan], quiet: bool) -> None:
     """Run the conformance checks on every method from outside the package
     (:mod:`legs_jax.runtime.conformance`) before any chunk; a failure is a
     one-line error."""
-    from legs_jax.core import methods
-    from legs_jax.runtime import conformance
+    from legs_jax.core import methods  # jax: not at sweep start-up
+    from legs_jax.runtime import conformance  # jax: not at sweep start-up
 
     names = {a.method for p in plans for a in p.arms}
     for name in sorted(n for n in names if not methods.builtin(n)):
@@ -241,8 +242,6 @@ def _warn_unlearnable(plans: Sequence[ExperimentPlan]) -> None:
     """Say, before any chunk runs, which problems have poses in which no method
     can learn (:func:`legs_jax.core.problem.unlearnable_poses`): their gaps then
     measure the problem, not the methods."""
-    from legs_jax.core import problem as problem_mod
-
     seen: set[str] = set()
     for plan in plans:
         for o in plan.objects:

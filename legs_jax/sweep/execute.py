@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from legs_jax import results as res
+from legs_jax.core import problem as problem_mod
 from legs_jax.sweep import store
 from legs_jax.sweep.hosts import _device_info, _Dist
 from legs_jax.sweep.plan import Chunk, ExperimentPlan, _say
@@ -33,7 +34,7 @@ from legs_jax.sweep.store import (
 def _engine():
     """The runtime that runs rollouts (:mod:`legs_jax.runtime`; imported late: JAX
     must start after the device flags are set)."""
-    from legs_jax import runtime
+    from legs_jax import runtime  # jax: not at sweep start-up
 
     return runtime
 
@@ -46,8 +47,6 @@ class _ProblemCache:
         self._items: OrderedDict[str, Any] = OrderedDict()
 
     def get(self, path: str):
-        from legs_jax.core import problem as problem_mod
-
         if path in self._items:
             self._items.move_to_end(path)
             return self._items[path]
@@ -66,8 +65,6 @@ def _run_chunk(
     progress: Callable[[float], None] | None,
 ):
     """Compute one chunk; returns its tables."""
-    from legs_jax.core import problem as problem_mod
-
     arm = plan.arms[chunk.arm]
     objs = [plan.objects[i] for i in chunk.objects]
     problems = [cache.get(o.path) for o in objs]

@@ -14,7 +14,10 @@ from pathlib import Path
 from typing import Any
 
 import experiments
+import precompute
 from legs_jax import results as res
+from legs_jax import synthetic
+from legs_jax.core import problem as problem_mod
 from legs_jax.sweep.plan import (
     SMOKE,
     Arm,
@@ -27,32 +30,15 @@ from legs_jax.sweep.plan import (
     make_arm,
     plan_chunks,
 )
+from precompute import problemset
+from precompute.errors import PrecomputeError
+from precompute.learned import default_prior
 
 
 # ======================================================================== objects
-def _precompute_errors() -> tuple[type[BaseException], ...]:
-    """The user-error exception of ``precompute``, when it has one."""
-    try:
-        from precompute.errors import PrecomputeError
-    except ImportError:
-        return ()
-    return (PrecomputeError,)
-
-
-def _catalog():
-    """The object catalogue of ``precompute``, or None when it is not available."""
-    try:
-        from precompute import catalog
-    except ImportError:
-        return None
-    if not hasattr(catalog, "objects"):
-        return None
-    return catalog
-
-
 def _name_object_id(name: str) -> int:
     """Stable object id of a problem outside the catalogue, from its name."""
-    from legs_jax.core.keys import object_id_from_name
+    from legs_jax.core.keys import object_id_from_name  # jax: not at sweep start-up
 
     return int(object_id_from_name(name))
 
@@ -92,8 +78,6 @@ def _resolve_names(requested: Sequence[str], catalog) -> list[tuple[str, str, in
 def _entry(
     name: str, set_: str, object_id: int, path: str | os.PathLike, source: str
 ) -> ObjectEntry:
-    from legs_jax.core import problem as problem_mod
-
     head = problem_mod.peek(path)  # ProblemFileError names the file and field
     T, P, K = head["shapes"]["robustness"]
     return ObjectEntry(
@@ -111,8 +95,6 @@ def _entry(
 
 
 def _user_problems(paths: Sequence[str], catalog) -> list[ObjectEntry]:
-    from legs_jax.core import problem as problem_mod
-
     known = {}
     if catalog is not None:
         known = {i.name: i for i in catalog.objects()}
@@ -142,9 +124,6 @@ def _user_problems(paths: Sequence[str], catalog) -> list[ObjectEntry]:
 
 def _smoke_problems(names: Sequence[str], catalog, folder: Path) -> list[ObjectEntry]:
     """Synthetic problems at smoke size, named like the real objects."""
-    from legs_jax import synthetic
-    from legs_jax.core import problem as problem_mod
-
     known = {}
     if catalog is not None:
         known = {i.name: i for i in catalog.objects()}
@@ -185,8 +164,6 @@ def _generated_problems(
     arguments of ``GENERATOR``), seeded and deterministic), written once into
     ``folder``; with ``smoke``, the first few at smoke size."""
     import importlib
-
-    from legs_jax.core import problem as problem_mod
 
     known = [n for n, _ in families]
     if requested:
@@ -339,8 +316,6 @@ class _ProblemsMissing(Exception):
 
 def _missing_problems(names: Sequence[str], params=None) -> list[str]:
     """Catalogue objects whose problem file is missing or out of date."""
-    import precompute
-
     return [i.name for i in precompute.out_of_date(list(names), params=params)]
 
 
@@ -379,26 +354,14 @@ def _catalog_problems(
     (``source="shipped"``, :mod:`precompute.problemset`), or files built from the
     meshes on this machine (``"built"``, made when missing); ``prior``: the prior
     they carry (an experiment's ``PRIOR``; None: the default one)."""
-    try:
-        import precompute
-    except ImportError:  # pragma: no cover - the package ships with legs_jax
-        precompute = None
-    if precompute is None or not hasattr(precompute, "ensure"):
-        raise SweepError(
-            "problem building (precompute.ensure) is not available; "
-            "pass problem files with --problems"
-        )
     params = None
     if prior is not None:
         try:
             params = precompute.BuildParams(prior=prior).check()
-        except _precompute_errors() as e:
+        except PrecomputeError as e:
             raise SweepError(str(e)) from None
     names = [n for n, _, _ in resolved]
     if source == "shipped":
-        from precompute import problemset
-        from precompute.learned import default_prior
-
         paths = problemset.paths(names, prior or default_prior())
     else:
         if dry_run:

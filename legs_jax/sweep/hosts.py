@@ -8,7 +8,9 @@ import dataclasses
 import os
 from typing import Any
 
+from legs_jax import results as res
 from legs_jax.sweep.plan import MAX_DEFAULT_HOST_DEVICES, SweepError
+from legs_jax.sweep.store import _exp_dir
 
 
 def _set_device_flags(n: int | None) -> None:
@@ -86,9 +88,6 @@ def _wait_for_chunks(dist: _Dist, plans, out, poll_s: float = 2.0) -> None:
     finished (whichever process computed it), so that the barrier after it is a
     short one however unequal the processes' shares of the work were."""
     import time
-
-    from legs_jax import results as res
-    from legs_jax.sweep.store import _exp_dir
 
     if dist.num_processes == 1:
         return

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from legs_jax import results as res
+from legs_jax.errors import ConfigError
 
 RESULTS_VERSION = 2  # 2: checks carry p_lower_eb (our stopping bound)
 
@@ -158,8 +159,7 @@ class ExperimentPlan:
 # ----------------------------------------------------------------------- hparams
 def _method(spec: str):
     """The method named ``spec`` (registered or ``module.path:ATTRIBUTE``)."""
-    from legs_jax.core import methods
-    from legs_jax.errors import ConfigError
+    from legs_jax.core import methods  # jax: not at sweep start-up
 
     try:
         return methods.resolve(spec)
@@ -174,8 +174,7 @@ def make_arm(method: str, variant: str, hparams: Mapping[str, Any]) -> Arm:
     Every grid point holds every hyperparameter column of the results (the
     method's values, and :func:`legs_jax.core.methods.column_defaults` for the
     columns it does not have)."""
-    from legs_jax.core import methods
-    from legs_jax.errors import ConfigError
+    from legs_jax.core import methods  # jax: not at sweep start-up
 
     m = _method(method)
     for k, v in hparams.items():
@@ -233,7 +232,7 @@ def _pose_bucket(p: int) -> int:
 def _static_config(arm: Arm, P: int, K: int):
     """The arm's method and its static configuration (that of its first grid
     point) on problems of P poses and K grasps."""
-    from legs_jax.core.methods.base import Config
+    from legs_jax.core.methods.base import Config  # jax: not at sweep start-up
 
     m = _method(arm.method)
     point = dict(arm.grid[0])
@@ -382,8 +381,6 @@ def plan_chunks(
 
 
 def _check_plan(plan: ExperimentPlan) -> None:
-    from legs_jax.errors import ConfigError
-
     for o in plan.objects:
         if plan.trials > o.num_trials:
             raise SweepError(

@@ -16,8 +16,12 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import experiments as declared
+from legs_jax.sweep import experiments as planning
 from legs_jax.sweep import plan as plan_mod
+from legs_jax.sweep.config import SweepConfig, validate
 from legs_jax.sweep.plan import ExperimentPlan
+from precompute import catalog
 
 # Bucket choices compared by the table: (pose buckets, chunks padded to their
 # group's largest shapes); None: powers of two, (): none.
@@ -35,8 +39,8 @@ CANDIDATES: dict[str, tuple[tuple[int, ...] | None, bool]] = {
 def _chunk_programs(plan: ExperimentPlan, c, n_dev: int):
     """(program key, rollouts, rollouts run with the mini-batch padding) of each
     static group of a chunk, as :func:`legs_jax.runtime.run` derives them."""
-    from legs_jax import runtime
-    from legs_jax.core.methods.base import Config
+    from legs_jax import runtime  # jax: not at sweep start-up
+    from legs_jax.core.methods.base import Config  # jax: not at sweep start-up
 
     arm = plan.arms[c.arm]
     m = plan_mod._method(arm.method)
@@ -127,12 +131,7 @@ def tradeoff(
 def plan_all() -> list[ExperimentPlan]:
     """The plans of ``python -m legs_jax.sweep --all``, from the problem files'
     headers (a :class:`SweepError` names the missing ones)."""
-    import experiments as declared
-    from legs_jax.sweep import experiments as planning
-    from legs_jax.sweep.config import SweepConfig, validate
-
     args = validate(SweepConfig(all=True, dry_run=True))
-    catalog = planning._catalog()
     out = []
     for name in declared.EXPERIMENTS:
         plan = planning._experiment_plan(name, args, catalog, Path("results"))

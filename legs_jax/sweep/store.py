@@ -15,13 +15,15 @@ from typing import Any
 import numpy as np
 
 from legs_jax import results as res
+from legs_jax._files import git_state
+from legs_jax._machine import machine
+from legs_jax.core import problem as problem_mod
 from legs_jax.sweep.plan import Chunk, ExperimentPlan, ObjectEntry, SweepError, _say
+from precompute import problemset
 
 
 def _versions() -> dict[str, str]:
     """Python, the processor and the packages that can change a result's bits."""
-    from legs_jax._machine import machine
-
     return {"python": platform.python_version(), **machine()}
 
 
@@ -34,12 +36,9 @@ def _array_digests(o: ObjectEntry) -> dict[str, str]:
 @functools.lru_cache(maxsize=256)
 def _digests_of(path: str, sha256: str, shipped: bool) -> tuple[tuple[str, str], ...]:
     if shipped:
-        from precompute import problemset
-
         found = problemset.array_digests(Path(path))
         if found is not None:
             return tuple(sorted(found.items()))
-    from legs_jax.core import problem as problem_mod
 
     try:
         return tuple(sorted(problem_mod.array_digests(problem_mod.load(path)).items()))
@@ -85,8 +84,6 @@ def _portable_path(path: str | os.PathLike) -> str:
 def _git_commit() -> dict[str, Any]:
     """The commit of the code and whether tracked files other than ``results/``
     (which a sweep rewrites) differ from it."""
-    from legs_jax._files import git_state
-
     return git_state()
 
 
@@ -496,8 +493,6 @@ def _merge(plan: ExperimentPlan, d: Path) -> dict[str, int]:
 def _grasps_table(plan: ExperimentPlan):
     """Ground truth and prior of trial 0's reservoir of each object (histograms)."""
     import pandas as pd
-
-    from legs_jax.core import problem as problem_mod
 
     frames = []
     for o in plan.objects:
