@@ -41,6 +41,10 @@ interrupted, on the device count or on the order in which chunks finished.
 
 Dimension letters: G grid points, O objects, T trials, R rollouts, C1 curve points,
 C2 checks, P poses, k active-set slots.
+
+Why one file: it owns the layout of a results folder from end to end. The chunk
+tables, the chunk folders and the merge read the same column lists, file names and
+metadata, so they change together.
 """
 
 from __future__ import annotations

@@ -49,6 +49,10 @@ problem file, a scene, a format not read), a file that does not parse as a mesh,
 triangles, degenerate geometry (all faces of zero area, or the points lie on a
 plane or a line), no enclosed volume, holes that cannot be closed, separate bodies,
 implausible size.
+
+Why one file: reading, repair and sizing are the stages of :func:`load_mesh`, in
+order; each is a few functions raising the same refusals, and the repair steps only
+make sense on the pieces that reading produces.
 """
 
 from __future__ import annotations

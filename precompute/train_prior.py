@@ -24,6 +24,10 @@ Stages (each with a progress bar unless ``--quiet``):
 Everything is determined by the seed: the objects, the labels, the noise, the
 split, the initial weights, the batch order and the turns (JAX on CPU is
 deterministic for a fixed program and machine).
+
+Why one file: labelling, training, the model card and the command line describe one
+run fixed by one :class:`TrainConfig` and one seed, and the card records the
+settings that every other section uses.
 """
 
 from __future__ import annotations

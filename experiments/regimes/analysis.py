@@ -5,7 +5,13 @@ of the real objects with their measured differences from ``main``
 BORGES (K=100), LEGS − BORGES (K=2000), LEGS − Bayes-UCB (K=100) over p-shape ×
 prior C-index, real objects overlaid; ``figures/regimes_side.png``: the side axes,
 the LEGS settings and the horizon) and the report's section, every sentence of
-which is computed from these numbers."""
+which is computed from these numbers.
+
+Why one file: the numbers, the tables, the two maps and the report's section are one
+chain over the frame that :func:`summarise` makes, each section a few short
+functions; kept together, one number can be followed from the frame to the sentence
+that states it.
+"""
 
 from __future__ import annotations
 

@@ -22,6 +22,11 @@ the Dirichlet check runs every ``check_every`` steps.
 Dimension letters: G grid points, O objects, T trials, R rollouts, B rollouts of a
 mini-batch, N (object, trial) pairs, P poses, K grasps, k active-set size,
 C1 recorded gap steps, C2 checks.
+
+Why one file: the environment step, the agent step, the Dirichlet checks and
+:func:`simulate`, which scans them, make one compiled program. They share the loop's
+state types and mean nothing outside :func:`simulate`; the methods' own rules live
+in :mod:`legs_jax.core.methods`.
 """
 
 from __future__ import annotations

@@ -7,6 +7,11 @@ pose the ground-truth success probability and the prior quality. It is stored as
 refuses a bad file with a :class:`ProblemFileError` naming the file and the field.
 
 Dimension letters: O objects, T trials (reservoirs), P poses, K grasps per pose.
+
+Why one file: it is the only reader and writer of the problem format. The fields,
+their validation, the compact encoding, the header peek and the batches all follow
+the one list of arrays above, so a change to the format is made here and nowhere
+else.
 """
 
 from __future__ import annotations

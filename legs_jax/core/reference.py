@@ -90,6 +90,12 @@ Validation.
   value outside its declared range, s = prior_offset = 0, and k > K for LEGS raise
   :class:`legs_jax.errors.ConfigError`. BORGES (K=100) and the K100 upper bound
   always use the top 100 (or every valid grasp when a pose has fewer).
+
+Why one file: this is the plain NumPy reference that the engine and every method are
+checked against (``tests/test_parity.py``), meant to be read beside Algorithm 1. Its
+validation, metrics, environment, method protocol and rollout loop are each short
+and call one another; spread over modules they would no longer be the one place
+where a reader checks the engine.
 """
 
 from __future__ import annotations
