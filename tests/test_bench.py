@@ -1,17 +1,22 @@
-"""The speed benchmark runs and reports every figure (no timing thresholds)."""
+"""The speed benchmark: its timing helpers measure what they say, its table shows
+the figures it is given, its projection adds up the sweep, and (slow) a quick run
+reports every figure. No timing thresholds on this machine's speed."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
 import subprocess
 import sys
+import time
 
 import pytest
 
 import experiments
 from legs_jax import bench
+from legs_jax.bench import common
 
 REQUIRED = (
     "sampler_samples_per_s",
@@ -41,6 +46,7 @@ def quick_result():
     return json.loads(out.stdout)
 
 
+@pytest.mark.slow
 def test_quick_json_has_every_figure(quick_result):
     r = quick_result
     for key in REQUIRED:
@@ -80,7 +86,7 @@ def test_projection_adds_up_the_sweep():
     expected_s = 0.0
     for name in experiments.EXPERIMENTS:
         mod = experiments.get(name)
-        n_obj = bench._count_objects(mod.OBJECTS)
+        n_obj = bench.count_objects(mod.OBJECTS)
         for method, _, hp in mod.ARMS:
             grid = max([len(v) for v in hp.values() if isinstance(v, tuple)] or [1])
             rate = rates.get(method) or rates[bench.proxy()[method]]
@@ -98,8 +104,8 @@ def test_projection_adds_up_the_sweep():
 
 def test_main_object_count():
     # 13 Dex-Net adversarial + 49 EGAD evaluation objects.
-    assert bench._count_objects(("dexnet_adv", "egad_eval")) == 62
-    assert bench._count_objects(("bar_clamp",)) == 1
+    assert bench.count_objects(("dexnet_adv", "egad_eval")) == 62
+    assert bench.count_objects(("bar_clamp",)) == 1
 
 
 def test_help_and_bad_arguments():
@@ -116,3 +122,93 @@ def test_help_and_bad_arguments():
     )
     assert bad.returncode == 2 and "invalid choice" in bad.stderr
     assert "Traceback" not in bad.stderr
+
+
+def test_timed_calls_measure_wall_and_cpu_seconds():
+    """A call that sleeps 20 ms does 50 calls' work a wall second, and uses almost
+    no CPU: its rate per CPU second is far above its rate per wall second."""
+    per_s, per_cpu_s = common._timed_calls(lambda: time.sleep(0.02), 3.0, 0.2)
+    assert 3.0 * 50 * 0.2 < per_s <= 3.0 * 50 * 1.01  # sleeps last at least 20 ms
+    assert per_cpu_s > 5 * per_s
+
+    # The median of repeats, each at least min_seconds long.
+    calls = []
+    rate = common._timed_rate(lambda: calls.append(time.sleep(0.01)), 1.0, 3, 0.05)
+    assert len(calls) >= 3 * 5 and 0 < rate <= 100 * 1.01
+
+
+def test_interleaved_rates_time_in_turns():
+    """Repeat r of every function before repeat r + 1 of any (after one warm-up
+    call each), so that a change of load hits them alike."""
+    order = []
+
+    def fn(name):
+        def call():
+            order.append(name)
+            time.sleep(0.002)
+
+        return call
+
+    rates = common._interleaved_rates({"a": fn("a"), "b": fn("b")}, 2.0, 3, 0.0)
+    assert order == ["a", "b"] * 4  # warm-up, then three repeats of one call each
+    for r in rates.values():
+        assert set(r) == {"per_s", "per_cpu_s"}
+        assert r["per_s"] <= 2.0 / 0.002 * 1.01
+
+
+def _result(**over):
+    """A benchmark result with made-up figures (every key the table reads)."""
+    r = {
+        "machine": {"cpu": "Test CPU", "cores": 2, "jax": "0.0", "platform": "cpu",
+                    "devices": ["d0", "d1"], "load_average_start": [0.1, 0.1, 0.1],
+                    "load_average_end": [0.2, 0.2, 0.2]},
+        "shape": [16, 2000],
+        "sampler_samples_per_s": 69.5e6, "sampler_compile_s": 1.5,
+        "sampler_samples_per_s_one_device": 40e6,
+        "sampler_samples_per_s_all_devices": 69.5e6,
+        "jax_random_beta_samples_per_s": 8.2e6, "jax_random_beta_compile_s": 2.0,
+        "numpy_beta_samples_per_s": 26.6e6,
+        "random_words_per_s_one_device": 2.1e9, "random_words_per_beta": 4.7,
+        "beta_retry_fraction": 0.044, "numpy_copy_gb_per_s": 9.0,
+        "jax_stream_gb_per_s_one_device": 12.0,
+        "engine_setup": {"poses": 4, "grasps": 2000, "horizon": 100,
+                         "reference_horizon": 100, "check_every": 100,
+                         "checked_methods": ["legs"]},
+        "steps_per_s": {
+            "legs": {"jax": 3.0e5, "numpy": 1.0e5, "ratio": 3.0, "compile_s": 4.0},
+            "tql": {"jax": 2.5e3, "compile_s": 1.0},
+        },
+        "projection": "by experiment", "projected_all_minutes": 71.0,
+        "all_rollout_steps": 1.0e9,
+        "projected_minutes_per_experiment": {"main": 62.0, "regimes": 9.0},
+    }  # fmt: skip
+    r.update(over)
+    return r
+
+
+def test_table_shows_the_figures_it_is_given():
+    lines = bench.format_table(_result()).splitlines()
+    text = "\n".join(lines)
+    assert "Test CPU, 2 cores" in text
+    assert "69.5 M/s" in text and "26.6 M/s" in text and "8.2 M/s" in text
+    assert "4.70 words per Beta draw (4.4 % of draws retried)" in text
+    (legs,) = [x for x in lines if x.split()[:1] == ["legs"]]
+    assert legs.split()[1:7] == ["300.0", "k", "100.0", "k", "3.0x", "-"]
+    (tql,) = [x for x in lines if x.split()[:1] == ["tql"]]
+    assert tql.split()[1:5] == ["2.5", "k", "-", "-"]  # not timed against NumPy
+    assert "71.0 min" in text and "main" in text and "62.0 min" in text
+    assert "Beta samplers side by side" not in text  # no sampler versions given
+
+
+def test_bench_of_one_method_runs_the_steps_it_reports():
+    """A tiny run of TQL through the engine: the steps it reports are the steps
+    it ran (rollouts x horizon), at a finite positive rate."""
+    cfg = dataclasses.replace(
+        bench.settings(True, None), repeats=1, trials=2, horizon=20,
+        rollouts_sparse=6, rollouts_dense=6, grasps=50, poses=2,
+    )  # fmt: skip
+    from legs_jax.bench import engine
+
+    row = bench.bench_jax_engine("tql", cfg, engine._problem(cfg))
+    assert row["rollouts"] == 6 and row["horizon"] == 20
+    assert math.isfinite(row["jax"]) and row["jax"] > 0 and row["compile_s"] >= 0
