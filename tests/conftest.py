@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -28,3 +29,9 @@ def box() -> World:
 def clamp_problem(tmp_path_factory) -> Path:
     """A small bar_clamp problem file (1 trial, 100 grasps a pose, 20 samples)."""
     return small_clamp_file(tmp_path_factory.mktemp("problem"))
+
+
+def pytest_xdist_auto_num_workers(config) -> int:
+    """``-n auto``: one worker per core, at most four (each worker holds a JAX
+    runtime and its compiled programs, up to about 3 GB)."""
+    return max(1, min(os.cpu_count() or 1, 4))

@@ -137,7 +137,20 @@ def _check_rollouts(name, tables, o, ot, horizon):
     _method_specific(name, tables, o, live, pose, grasp, ot_)
 
 
-@pytest.mark.parametrize("name", methods.names())
+# A method whose per-step work is a sibling's with another size or without its
+# active set is conformance-checked by default through that sibling, and itself
+# in the slow suite.
+_SIBLING_OF = {"bayes_ucb_2000": "bayes_ucb_100", "borges_2000": "borges_100",
+               "legs_no_as": "legs"}  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        pytest.param(n, marks=pytest.mark.slow) if n in _SIBLING_OF else n
+        for n in methods.names()
+    ],
+)
 def test_conformance_jit_vmap_grid(name):
     """Every method under jit(vmap) over a grid axis of hyperparameters: masks,
     candidate sets, finite outputs, counters (one compiled program)."""

@@ -16,6 +16,7 @@ import trimesh
 from legs_jax.core import problem as problem_mod
 from legs_jax.online import cli
 from legs_jax.online import simulate as sim_mod
+from precompute import cli as precompute_cli
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -76,6 +77,24 @@ def test_learning_curve_has_marked_points(tmp_path, clamp_problem, monkeypatch):
     assert all(m not in (None, "", "None") and n == 51 for m, n in drawn["lines"])
 
 
+class _Done:
+    def __init__(self, returncode, stdout, stderr):
+        self.returncode, self.stdout, self.stderr = returncode, stdout, stderr
+
+
+def _in_process(args, cwd, monkeypatch, capsys) -> _Done:
+    """``python -m MODULE ARGS`` in ``cwd``, run as the module's ``main`` here."""
+    mains = {"precompute": precompute_cli.main, "legs_jax.online": cli.main}
+    monkeypatch.chdir(cwd)
+    capsys.readouterr()
+    try:
+        code = mains[args[0]](list(args[1:]))
+    except SystemExit as e:  # argparse errors
+        code = e.code
+    out, err = capsys.readouterr()
+    return _Done(code, out, err)
+
+
 def _run(args, cwd):
     env = dict(os.environ, PYTHONPATH=str(ROOT), MPLBACKEND="Agg")
     return subprocess.run(
@@ -84,9 +103,16 @@ def _run(args, cwd):
     )  # fmt: skip
 
 
-def test_a_users_mesh_is_skipped_when_current_and_simulated(tmp_path):
+def test_a_users_mesh_is_skipped_when_current_and_simulated(
+    tmp_path, monkeypatch, capsys
+):
     """python -m precompute --mesh skips an up-to-date file (unless --force),
-    and online simulate runs on that problem file or on the mesh itself."""
+    and online simulate runs on that problem file or on the mesh itself (both
+    command lines called in this process, as their ``main``)."""
+
+    def _run(args, cwd):
+        return _in_process(args, cwd, monkeypatch, capsys)
+
     work = tmp_path / "work"
     work.mkdir()
     trimesh.creation.box((40.0, 60.0, 30.0)).export(work / "box.stl")

@@ -76,23 +76,22 @@ def _finished(chunks: Path) -> list[str]:
     )
 
 
-def test_smoke_runs_every_experiment(tmp_path):
-    t0 = time.perf_counter()
-    p = _sweep(["--smoke", "--out", str(tmp_path)], _env())
-    wall = time.perf_counter() - t0
-    assert p.returncode == 0, p.stderr[-3000:]
+def _smoke_checks(folder: Path, methods: set[str] | None) -> None:
+    """What every experiment of a smoke run wrote: complete manifests, runs at
+    the smoke's sizes, curves whose last point is the runs' mean final gap, checks
+    at the check steps; ``methods``: the methods that ran (None: all declared)."""
     names = list(experiments.EXPERIMENTS)
     assert "prior_synthetic" in names and "regimes" in names and len(names) == 7
-    assert sorted(d.name for d in tmp_path.iterdir() if d.name[0] != "_") == sorted(
-        names
-    )
+    assert sorted(d.name for d in folder.iterdir() if d.name[0] != "_") == sorted(names)
     for name in names:
-        d = tmp_path / name
+        d = folder / name
         man = json.loads((d / "manifest.json").read_text())
         assert man["status"] == "complete" and man["config"]["smoke"] is True
         runs = pd.read_parquet(d / "runs.parquet")
         curves = pd.read_parquet(d / "curves.parquet")
         checks = pd.read_parquet(d / "checks.parquet")
+        if methods is not None:
+            assert set(runs.method) == methods, name
         assert runs.final_gap.between(0, 1).all()
         assert (runs.horizon == 200).all() and set(runs.trial) == {0}
         assert set(runs.rollout) == {0, 1}
@@ -106,21 +105,43 @@ def test_smoke_runs_every_experiment(tmp_path):
             last.gap_mean.sort_index(), mean.sort_index(), check_names=False
         )
         assert set(checks.step) <= {100, 200}
+    act = pd.read_parquet(folder / "case_study/active_set.parquet")
+    assert len(act) > 0 and set(act.method) == {"legs"}
+    assert act.grasp.ge(0).all() and act.robustness.between(0, 1).all()
+    es = pd.read_parquet(folder / "early_stopping/checks.parquet")
+    assert es.p_lower_attempted.notna().all() and es.p_lower.between(0, 1).all()
+    conf = pd.read_parquet(folder / "confidence/runs.parquet")
+    assert sorted(set(conf.delta)) == [0.01, 0.05, 0.1, 0.15, 0.2, 0.25]
+    ps = pd.read_parquet(folder / "prior_strength/runs.parquet")
+    assert sorted(set(ps.s)) == [0, 1, 2, 3, 4, 5] and set(ps.delta) == {0.07}
+
+
+def test_smoke_of_legs_runs_every_experiment(tmp_path):
+    """LEGS's arms of all seven experiments (the grids of the confidence and
+    prior-strength studies, the regimes map's variants); a second run finds
+    everything done and changes nothing."""
+    args = ["--smoke", "--methods", "legs", "--out", str(tmp_path)]
+    p = _sweep(args, _env())
+    assert p.returncode == 0, p.stderr[-3000:]
+    _smoke_checks(tmp_path, {"legs"})
+    before = _tables(tmp_path)
+    p = _sweep(args, _env())
+    assert p.returncode == 0, p.stderr[-3000:]
+    assert _tables(tmp_path) == before
+
+
+@pytest.mark.slow
+def test_smoke_runs_every_experiment(tmp_path):
+    """Every declared arm of all seven experiments (a few minutes: every method's
+    programs compile)."""
+    p = _sweep(["--smoke", "--out", str(tmp_path)], _env())
+    assert p.returncode == 0, p.stderr[-3000:]
+    _smoke_checks(tmp_path, None)
     main = pd.read_parquet(tmp_path / "main/runs.parquet")
     # Every method the experiment declares (the paper's seven, the extra rows) ran.
     declared = {m for m, _, _ in experiments.get("main").ARMS}
     assert len(declared) == 9 and set(main.method) == declared
     assert set(main[main.variant == "orig_prior"].method) == {"borges_2000"}
-    act = pd.read_parquet(tmp_path / "case_study/active_set.parquet")
-    assert len(act) > 0 and set(act.method) == {"legs"}
-    assert act.grasp.ge(0).all() and act.robustness.between(0, 1).all()
-    es = pd.read_parquet(tmp_path / "early_stopping/checks.parquet")
-    assert es.p_lower_attempted.notna().all() and es.p_lower.between(0, 1).all()
-    conf = pd.read_parquet(tmp_path / "confidence/runs.parquet")
-    assert sorted(set(conf.delta)) == [0.01, 0.05, 0.1, 0.15, 0.2, 0.25]
-    ps = pd.read_parquet(tmp_path / "prior_strength/runs.parquet")
-    assert sorted(set(ps.s)) == [0, 1, 2, 3, 4, 5] and set(ps.delta) == {0.07}
-    print(f"smoke wall time {wall:.1f} s")
     # A second run finds everything done and changes nothing.
     before = _tables(tmp_path)
     p = _sweep(["--smoke", "--out", str(tmp_path)], _env())
