@@ -13,35 +13,78 @@ from legs_jax.core import engine, stopping
 # ------------------------------------------------------------------ the pieces
 
 
+def _em(lik, w):
+    for _ in range(stopping.EM_ITERATIONS):
+        r = w * lik
+        w = (r / r.sum(1, keepdims=True)).mean(0)
+    return w
+
+
+def _pooled_start(succ, fail):
+    """The pooled start: the bin of the pooled success rate at 1, the others at
+    START_FLOOR, normalised."""
+    j = min(int(succ.sum() / (succ + fail).sum() * stopping.GRID), stopping.GRID - 1)
+    w = np.full(stopping.GRID, stopping.START_FLOOR)
+    w[j] = 1.0
+    return w / w.sum()
+
+
 def test_eb_posterior_is_the_prior_reweighted_by_the_grasps_likelihood():
-    # One pose, every grasp tried: the fit is the EM fixpoint over the other
-    # grasps (the recommended one left out, the default), and the rec's
-    # posterior is that prior times its Binomial likelihood at the bin centres.
+    # One pose, every grasp tried: the fit is EM over the other grasps (the
+    # recommended one left out, the default) from the pooled start, and the
+    # rec's posterior is that prior times its Binomial likelihood at the bin
+    # centres.
     rng = np.random.default_rng(0)
     succ = rng.integers(0, 6, (1, 1, 40)).astype(np.float32)
     fail = rng.integers(0, 6, (1, 1, 40)).astype(np.float32)
     fit = np.ones((1, 1, 40), bool)
     rec = np.zeros((1, 1, 40), bool)
     rec[0, 0, 7] = True
-    post = np.asarray(stopping.eb_posterior(succ, fail, fit, rec))[0, 0]
     theta = (np.arange(stopping.GRID) + 0.5) / stopping.GRID
     lik = stats.binom.pmf(succ[0, 0, :, None], (succ + fail)[0, 0, :, None], theta)
-    w = np.full(stopping.GRID, 1 / stopping.GRID)
     others = np.arange(40) != 7
-    for _ in range(stopping.EM_ITERATIONS):
-        r = w * lik[others]
-        w = (r / r.sum(1, keepdims=True)).mean(0)
-    want = w * lik[7]
-    np.testing.assert_allclose(post, want / want.sum(), atol=2e-5)
-    # leave_out_rec=False (the earlier fit): all 40 grasps shape G_s
-    post = stopping.eb_posterior(succ, fail, fit, rec, leave_out_rec=False)
-    post = np.asarray(post)[0, 0]
-    w = np.full(stopping.GRID, 1 / stopping.GRID)
-    for _ in range(stopping.EM_ITERATIONS):
-        r = w * lik
-        w = (r / r.sum(1, keepdims=True)).mean(0)
-    want = w * lik[7]
-    np.testing.assert_allclose(post, want / want.sum(), atol=2e-5)
+    start = _pooled_start(succ[0, 0, others], fail[0, 0, others])
+    for kw, w0, rows in (
+        ({}, start, others),
+        ({"start": "uniform"}, np.full(stopping.GRID, 1 / stopping.GRID), others),
+        # leave_out_rec=False (the first design): all 40 grasps shape G_s
+        (
+            {"leave_out_rec": False, "start": "uniform"},
+            np.full(stopping.GRID, 1 / stopping.GRID),
+            slice(None),
+        ),
+    ):
+        post = np.asarray(stopping.eb_posterior(succ, fail, fit, rec, **kw))[0, 0]
+        want = _em(lik[rows], w0) * lik[7]
+        np.testing.assert_allclose(post, want / want.sum(), atol=2e-5, err_msg=kw)
+    with pytest.raises(ValueError, match="start must be one of"):
+        stopping.eb_posterior(succ, fail, fit, rec, start="wide")
+
+
+def test_the_pooled_start_shrinks_where_the_outcomes_cannot_tell_the_spread():
+    """Every grasp of the pose succeeds with p = 0.3, and all but the
+    recommended one were tried once: those outcomes tell only the pose's mean
+    rate. From the pooled start the fit stays at it, and the recommended grasp's
+    3 successes in 3 tries (its luck: its p is 0.3 too) are shrunk to about the
+    truth; from the uniform start the fit stays wide and the posterior keeps
+    most of that luck (the winner's curse)."""
+    rng = np.random.default_rng(4)
+    n = 80
+    succ = (rng.random((1, 1, n)) < 0.3).astype(np.float32)
+    fail = 1.0 - succ
+    succ[..., 0], fail[..., 0] = 3.0, 0.0  # the recommended grasp
+    fit = np.ones(succ.shape, bool)
+    rec = np.arange(n)[None, None] == 0
+    theta = (np.arange(stopping.GRID) + 0.5) / stopping.GRID
+    mean = {
+        start: float(
+            np.asarray(stopping.eb_posterior(succ, fail, fit, rec, start=start))[0, 0]
+            @ theta
+        )
+        for start in stopping.FIT_STARTS
+    }
+    assert abs(mean["pooled"] - 0.3) < 0.05
+    assert mean["uniform"] > 0.3 + 0.2
 
 
 def test_forgotten_grasps_enter_the_fit_like_kept_ones():
@@ -200,10 +243,12 @@ def _synthetic_checks(n_problems: int, seed: int):
     return counts, observed, succ, fail, rec, plug_in, truth
 
 
-@pytest.mark.parametrize("leave_out_rec", [False, True])
-def test_miss_rate_is_at_most_delta_stop_where_the_model_holds(leave_out_rec):
-    """With G_s fitted without the recommended grasp's outcomes (shipped) and
-    with them (the earlier fit, experiments/early_stopping/bound_design.py)."""
+@pytest.mark.parametrize(
+    "leave_out_rec, start", [(False, "uniform"), (True, "uniform"), (True, "pooled")]
+)
+def test_miss_rate_is_at_most_delta_stop_where_the_model_holds(leave_out_rec, start):
+    """The shipped fit (without the recommended grasp's outcomes, from the pooled
+    rate) and the two earlier ones (experiments/early_stopping/bound_design.py)."""
     n = 400
     counts, observed, succ, fail, rec, plug_in, truth = _synthetic_checks(n, 23)
     N = succ.shape[-1]
@@ -213,6 +258,7 @@ def test_miss_rate_is_at_most_delta_stop_where_the_model_holds(leave_out_rec):
         (succ + fail) > 0,
         rec[..., None] == np.arange(N),
         leave_out_rec=leave_out_rec,
+        start=start,
     )
     keys = jax.random.split(jax.random.key(5), n)
     draws = stopping.draw_values(keys, post, engine.NUM_DIRICHLET_SAMPLES)
@@ -232,8 +278,11 @@ def test_miss_rate_is_at_most_delta_stop_where_the_model_holds(leave_out_rec):
     miss = np.mean(ours > truth)
     assert miss <= engine.DELTA_STOP + tol, (miss, tol)
     # ... and it is no trivial bound (about 40 drops and 240 attempts over four
-    # poses, unseen poses counted 0): within 0.25 of the truth on average
-    assert np.mean(truth - ours) < 0.25
+    # poses, unseen poses counted 0): within 0.25 of the truth on average, 0.35
+    # from the pooled start, which pays for its validity on hard objects where a
+    # pose's few good grasps stand apart from the rest, as here (good grasps are
+    # 5 to 40 % of a pose)
+    assert np.mean(truth - ours) < (0.35 if start == "pooled" else 0.25)
     # The same test catches the plug-in bound (the winner's curse).
     assert np.mean(paper > truth) > engine.DELTA_STOP + tol
 
@@ -265,3 +314,61 @@ def test_bound_design_scores_checks_and_refuses_bad_sizes(capsys):
         bound_design.main(["--rollouts", "0"])
     assert e.value.code == 2
     assert "--rollouts must be at least 1" in capsys.readouterr().err
+
+
+def _misspecified_checks(n, seed, poses, drops, tries, draw_p):
+    """Problems outside the bound's histogram model's comfort: ``draw_p`` draws
+    every grasp's p (skewed, bimodal, hard); ``drops`` landings by λ ~ Dir(1),
+    ``tries`` Thompson attempts (uniform Beta prior) per landing over 100 grasps;
+    the recommendation is the largest posterior mean."""
+    rng = np.random.default_rng(seed)
+    lam = rng.dirichlet(np.ones(poses), n)
+    p = draw_p(rng, (n, poses, 100))
+    counts = np.zeros((n, poses))
+    succ = np.zeros(p.shape)
+    fail = np.zeros(p.shape)
+    bi = np.arange(n)
+    for _ in range(drops):
+        s = (rng.random((n, 1)) > np.cumsum(lam, 1)).sum(1).clip(0, poses - 1)
+        counts[bi, s] += 1
+        for _ in range(tries):
+            a = rng.beta(1 + succ[bi, s], 1 + fail[bi, s]).argmax(1)
+            r = rng.random(n) < p[bi, s, a]
+            succ[bi, s, a] += r
+            fail[bi, s, a] += ~r
+    rec = ((1 + succ) / (2 + succ + fail)).argmax(-1)
+    truth = (lam * np.take_along_axis(p, rec[..., None], -1)[..., 0]).sum(1)
+    return counts, succ, fail, rec, truth
+
+
+@pytest.mark.parametrize(
+    "case",
+    [
+        # hard objects: every grasp poor, ten poses, two tries a landing
+        (7, 10, 60, 2, lambda r, sh: r.beta(2, 6, sh)),
+        # skewed: most grasps near 0, a long upper tail
+        (8, 4, 40, 3, lambda r, sh: r.beta(1, 9, sh)),
+        # bimodal: one grasp in ten good (0.9), the rest 0.05
+        (9, 6, 40, 3, lambda r, sh: np.where(r.random(sh) < 0.1, 0.9, 0.05)),
+    ],
+    ids=["hard-many-poses", "skewed", "bimodal"],
+)
+def test_miss_rate_is_at_most_delta_stop_where_the_model_is_wrong(case):
+    """The shipped bound where G_s is no histogram the fit can reach in few
+    tries: misses at most δ_stop + 3 binomial standard deviations (400
+    problems)."""
+    n = 400
+    counts, succ, fail, rec, truth = _misspecified_checks(n, *case)
+    post = stopping.eb_posterior(
+        succ.astype(np.float32), fail.astype(np.float32), (succ + fail) > 0,
+        rec[..., None] == np.arange(succ.shape[-1]),
+    )  # fmt: skip
+    keys = jax.random.split(jax.random.key(5), n)
+    draws = stopping.draw_values(keys, post, engine.NUM_DIRICHLET_SAMPLES)
+    values = np.zeros((n, 1, counts.shape[1]), np.float32)
+    lo = engine.dirichlet_quantiles(
+        keys, counts.astype(np.float32), counts > 0, values, draws=draws
+    )
+    ours = np.asarray(lo)[:, 1]
+    tol = 3 * np.sqrt(engine.DELTA_STOP * (1 - engine.DELTA_STOP) / n)
+    assert np.mean(ours > truth) <= engine.DELTA_STOP + tol

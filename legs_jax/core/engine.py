@@ -432,6 +432,7 @@ def simulate(
     trajectory: bool = False,
     dirichlet: bool = True,
     eb_leave_out_rec: bool = True,
+    eb_fit_start: str = "pooled",
 ) -> dict[str, jax.Array]:
     """Run B rollouts of ``method`` for ``horizon`` steps (pure; jit- and vmap-able).
 
@@ -455,6 +456,9 @@ def simulate(
         grasp's own outcomes (``leave_out_rec`` of
         :func:`legs_jax.core.stopping.eb_posterior`; the default; False: the
         earlier fit, with them).
+      eb_fit_start: where our bound's fit of G_s starts (``start`` of
+        :func:`legs_jax.core.stopping.eb_posterior`: ``"pooled"``, the default,
+        or ``"uniform"``, the earlier bound).
     Returns:
       dict of arrays with leading axis B: ``gaps`` [B, 1 + H // L] (steps 0, L,
       2L, ...; L = gcd(record_every, check_every)), ``final_gap``,
@@ -544,7 +548,9 @@ def simulate(
         succ, fail, fit, ids = m.counts(c.mstate, ctx, cfg)
         rec = (ids == c.rec[..., None]) & (c.rec[..., None] >= 0)
         lost = c.forgotten if track else None
-        return stopping.eb_posterior(succ, fail, fit, rec, lost, eb_leave_out_rec)
+        return stopping.eb_posterior(
+            succ, fail, fit, rec, lost, eb_leave_out_rec, eb_fit_start
+        )
 
     def check(c: _Loop, idx):
         v_all, v_att = m.estimates(c.mstate, ctx, cfg)

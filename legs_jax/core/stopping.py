@@ -33,6 +33,22 @@ recommended grasp's success probability under an empirical-Bayes prior:
   Dex-Net design set (``experiments/early_stopping/bound_design.py``, LEGS,
   10 trials x 2 rollouts): valid at 82.3 % of the checks with it, 95.1 %
   without it.
+- Why the fit starts narrow (``start="pooled"``, the default): a grasp tried
+  once tells the fit only its pose's mean success rate; how widely p varies
+  between grasps is told only by grasps tried several times. Most grasps are
+  tried once or twice, so the data leave the spread of G_s open, and EM keeps
+  much of the spread it starts from. From the uniform histogram (the earlier
+  start, ``"uniform"``) G_s stays wide, the recommended grasp's posterior follows
+  its own few outcomes, and the winner's curse returns: on hard objects its
+  posterior mean overstated its true p by about 0.08. Started at the pose's
+  pooled success rate, G_s widens only as far as the outcomes demand; where they
+  cannot tell, the recommended grasp is shrunk toward its pose's mean, which can
+  only lower the bound. Measured on reference LEGS rollouts (10 trials x 2
+  rollouts, H = 3000; the same posterior recomputed in NumPy): valid at 95.8 %
+  (Dex-Net) and 85.0 % (EGAD, worst object 26 %) of the checks with the uniform
+  start, at 98.9 % and 98.3 % (worst object 92 %) with the pooled start.
+  ``START_FLOOR`` from 1e-2 to 1e-4 and 25 or 100 EM steps gave 96-97 % on an
+  EGAD subsample: the start matters, not its floor.
 - The bound is the δ_stop quantile of p' = Σ_{observed s} λ'_s p'_s.
 
 Why it should hold: given G_s the posterior of p_rec is exact whatever rule
@@ -58,7 +74,9 @@ import jax.numpy as jnp
 __all__ = [
     "CAP",
     "EM_ITERATIONS",
+    "FIT_STARTS",
     "GRID",
+    "START_FLOOR",
     "UNIFORM_STREAM",
     "draw_values",
     "eb_posterior",
@@ -67,6 +85,11 @@ __all__ = [
 
 GRID = 16  # histogram bins of the prior G_s
 EM_ITERATIONS = 25
+# Where the EM fit of G_s starts: "pooled" (the default) puts G_s at the bin of
+# the pose's pooled success rate, every other bin at START_FLOOR (EM multiplies
+# weights, so a bin at zero would stay at zero); "uniform" is the earlier start.
+FIT_STARTS = ("pooled", "uniform")
+START_FLOOR = 1e-3
 UNIFORM_STREAM = 1 << 30  # fold_in data of the p' uniforms (apart from pose ids)
 # Forgotten grasps (pruned from an active set) are kept as a count per (S, F)
 # cell, S and F clipped to CAP - 1.
@@ -112,6 +135,7 @@ def eb_posterior(
     rec: jax.Array,
     forgotten: jax.Array | None = None,
     leave_out_rec: bool = True,
+    start: str = "pooled",
 ) -> jax.Array:
     """Posterior bin weights of the recommended grasp of every pose.
 
@@ -127,6 +151,9 @@ def eb_posterior(
         compare in ``experiments/early_stopping/bound_design.py``). Fitted with
         them, G_s's upper tail is mostly the recommended grasp itself, and its
         posterior then uses the same outcomes twice (module docstring).
+      start: where the fit starts (``FIT_STARTS``): ``"pooled"`` (the default),
+        G_s at the pose's pooled success rate, as narrow as the histogram allows;
+        ``"uniform"``, the earlier start (module docstring).
     Returns:
       [B, P, GRID] f32 posterior weights (sum 1; G_s uniform where pose s has no
       attempted grasp).
@@ -161,9 +188,24 @@ def eb_posterior(
             g = g + jnp.einsum("bpc,cj->bpj", ratio(mc, dc), cell_lik)
         return w * g / n_fit, None
 
-    w0 = jnp.full(succ.shape[:2] + (GRID,), 1.0 / GRID, jnp.float32)
+    flat = jnp.full(succ.shape[:2] + (GRID,), 1.0 / GRID, jnp.float32)
+    if start == "uniform":
+        w0 = flat
+    elif start == "pooled":
+        # the pooled success rate of the fitted grasps (forgotten ones included)
+        wins = jnp.sum(m * succ, axis=-1)
+        tries = jnp.sum(m * (succ + fail), axis=-1)
+        if forgotten is not None:
+            wins = wins + mc @ cs.astype(jnp.float32)
+            tries = tries + mc @ (cs + cf).astype(jnp.float32)
+        rate = jnp.where(tries > 0, wins / jnp.maximum(tries, 1.0), 0.5)
+        j = jnp.clip(jnp.floor(rate * GRID), 0, GRID - 1).astype(jnp.int32)
+        w0 = jnp.where(jnp.arange(GRID) == j[..., None], 1.0, START_FLOOR)
+        w0 = (w0 / jnp.sum(w0, axis=-1, keepdims=True)).astype(jnp.float32)
+    else:
+        raise ValueError(f"start must be one of {FIT_STARTS}, got {start!r}")
     w, _ = jax.lax.scan(em, w0, None, length=EM_ITERATIONS)
-    w = jnp.where(any_fit[..., None], w, w0)
+    w = jnp.where(any_fit[..., None], w, flat)
     post = w * jnp.exp(own - jnp.max(own, axis=-1, keepdims=True))
     return post / jnp.sum(post, axis=-1, keepdims=True)
 

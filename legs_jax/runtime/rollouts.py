@@ -260,6 +260,7 @@ def run(
     stop_variant_attempted: bool = True,
     record_active_set: bool = False,
     eb_leave_out_rec: bool = True,
+    eb_fit_start: str = "pooled",
     devices: Sequence[jax.Device] | None = None,
     batch_size: int | None = None,
     progress: bool | Callable[[int], Any] | None = None,
@@ -288,6 +289,8 @@ def run(
       record_active_set: return each pose's active set at each check.
       eb_leave_out_rec: our bound's G_s fitted without the recommended grasp's
         own outcomes (:func:`simulate`; the default).
+      eb_fit_start: where our bound's fit of G_s starts: ``"pooled"`` (the
+        default) or ``"uniform"`` (the earlier bound, kept to compare).
       devices: devices to shard the rollouts over (default: all local devices).
         On CPU, JAX shows one device unless ``XLA_FLAGS`` holds
         ``--xla_force_host_platform_device_count=<cores>`` before JAX starts;
@@ -436,6 +439,7 @@ def run(
             attempted_variant=bool(stop_variant_attempted),
             record_active_set=bool(record_active_set),
             eb_leave_out_rec=bool(eb_leave_out_rec),
+            eb_fit_start=str(eb_fit_start),
         )  # fmt: skip
         checks_fn = compiled_checks(devices, True) if check_every else None
         pending = []
