@@ -175,7 +175,7 @@ def test_early_stopping_reports_ours_on_both_sets(world):
         assert label in row
         assert f"{100 * acc:.1f} %" in row and f"{100 * tight:.2f} %" in row
     report = (world["out1"] / "REPORT.md").read_text()
-    assert "Ours on the EGAD! evaluation set (held out" in report
+    assert "Ours on the EGAD! evaluation set (a design set too)" in report
     # Stopping on ours, per set, recomputed run by run: the lowest share of
     # stopped runs truly above rho_min over the thresholds where one stopped.
     from experiments.early_stopping.sweep import RHO_MIN
