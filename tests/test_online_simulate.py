@@ -5,9 +5,7 @@ problem file or a mesh of the user's own runs as well as a catalogue name."""
 from __future__ import annotations
 
 import json
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -17,8 +15,6 @@ from legs_jax.core import problem as problem_mod
 from legs_jax.online import cli
 from legs_jax.online import simulate as sim_mod
 from precompute import cli as precompute_cli
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def _curve(out: Path) -> list[dict]:
@@ -77,12 +73,7 @@ def test_learning_curve_has_marked_points(tmp_path, clamp_problem, monkeypatch):
     assert all(m not in (None, "", "None") and n == 51 for m, n in drawn["lines"])
 
 
-class _Done:
-    def __init__(self, returncode, stdout, stderr):
-        self.returncode, self.stdout, self.stderr = returncode, stdout, stderr
-
-
-def _in_process(args, cwd, monkeypatch, capsys) -> _Done:
+def _in_process(args, cwd, monkeypatch, capsys) -> subprocess.CompletedProcess:
     """``python -m MODULE ARGS`` in ``cwd``, run as the module's ``main`` here."""
     mains = {"precompute": precompute_cli.main, "legs_jax.online": cli.main}
     monkeypatch.chdir(cwd)
@@ -92,15 +83,7 @@ def _in_process(args, cwd, monkeypatch, capsys) -> _Done:
     except SystemExit as e:  # argparse errors
         code = e.code
     out, err = capsys.readouterr()
-    return _Done(code, out, err)
-
-
-def _run(args, cwd):
-    env = dict(os.environ, PYTHONPATH=str(ROOT), MPLBACKEND="Agg")
-    return subprocess.run(
-        [sys.executable, "-m", *args], cwd=cwd, env=env, capture_output=True,
-        text=True, timeout=600,
-    )  # fmt: skip
+    return subprocess.CompletedProcess(args, code, out, err)
 
 
 def test_a_users_mesh_is_skipped_when_current_and_simulated(
