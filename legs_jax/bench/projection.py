@@ -24,6 +24,18 @@ def count_objects(names: Sequence[str]) -> int:
     return sum(sizes.get(n, 1) for n in names)
 
 
+def _projected(
+    how: str, seconds: float, per_exp: dict[str, float], steps: float
+) -> dict[str, Any]:
+    """A projection's result: total and per-experiment minutes, rollout-steps."""
+    return {
+        "projection": how,
+        "projected_all_minutes": round(seconds / 60.0, 2),
+        "projected_minutes_per_experiment": per_exp,
+        "all_rollout_steps": steps,
+    }
+
+
 def projection(rates: dict[str, float]) -> dict[str, Any]:
     """Minutes of ``--all`` from rollout-steps per second of each method, every
     object charged at the benchmark's pose count (the projection without the
@@ -52,12 +64,10 @@ def projection(rates: dict[str, float]) -> dict[str, Any]:
             exp_s += steps / rate
         per_exp[name] = round(exp_s / 60.0, 2)
         seconds += exp_s
-    return {
-        "projection": "by experiment, every object at the benchmark's pose count",
-        "projected_all_minutes": round(seconds / 60.0, 2),
-        "projected_minutes_per_experiment": per_exp,
-        "all_rollout_steps": steps_total,
-    }
+    return _projected(
+        "by experiment, every object at the benchmark's pose count",
+        seconds, per_exp, steps_total,
+    )  # fmt: skip
 
 
 def sweep_plans() -> tuple[list | None, str | None]:
@@ -115,9 +125,7 @@ def projection_by_chunk(
         made |= new
         per_exp[plan.name] = round(exp_s / 60.0, 2)
         seconds += exp_s
-    return {
-        "projection": "chunk by chunk, at each pose bucket's rates, copies free",
-        "projected_all_minutes": round(seconds / 60.0, 2),
-        "projected_minutes_per_experiment": per_exp,
-        "all_rollout_steps": steps_total,
-    }
+    return _projected(
+        "chunk by chunk, at each pose bucket's rates, copies free",
+        seconds, per_exp, steps_total,
+    )  # fmt: skip
