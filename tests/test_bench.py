@@ -76,6 +76,12 @@ def test_quick_json_has_every_figure(quick_result):
     table = bench.format_table(r)
     assert "jax.random.beta" in table and "borges_2000" in table
     assert "beta_sampler.beta_rows_v2" in table and "Thompson draw step" in table
+    # The stopping checks: each bound alone, LEGS with and without them.
+    for key in ("paper", "ours", "ours_fit"):
+        assert _positive(r["check_cost_us_per_cpu"][key]), key
+    for key in ("none", "paper", "both"):
+        assert _positive(r["legs_checks_steps_per_cpu_s"][key]), key
+    assert "Stopping checks" in table
 
 
 def test_projection_adds_up_the_sweep():
@@ -198,6 +204,36 @@ def test_table_shows_the_figures_it_is_given():
     assert tql.split()[1:5] == ["2.5", "k", "-", "-"]  # not timed against NumPy
     assert "71.0 min" in text and "main" in text and "62.0 min" in text
     assert "Beta samplers side by side" not in text  # no sampler versions given
+    assert "Stopping checks" not in text  # no check costs given
+
+
+def test_table_shows_the_check_costs_it_is_given():
+    r = _result(
+        check_cost_setup={"rows": 32, "poses": 8, "slots": 100, "M": 3000},
+        check_cost_us_per_cpu={"paper": 300.0, "ours": 450.0, "ours_fit": 47.0},
+        check_cost_ours_over_paper=1.5,
+        legs_checks_steps_per_cpu_s={"none": 2.0e5, "paper": 1.2e5, "both": 1.0e5},
+        legs_checks_rollouts=64,
+        legs_checks_added_us_per_check={"paper": 350.0, "ours": 170.0},
+        legs_checks_both_over_none=2.0,
+    )
+    text = bench.format_table(r)
+    assert "P=8, 100 slots a pose, M=3000" in text
+    assert "the paper's bound alone      300 us" in text
+    assert "ours alone                   450 us (1.50x the paper's; its fit 47 us)" in text
+    assert "200.0 k steps/cpu-s without checks, 120.0 k with the paper's" in text
+    assert "the paper's bound 350 us, ours beside it (the same Dirichlet draws) 170 us" in text
+
+
+def test_check_cost_bench_times_both_bounds_on_the_same_shapes():
+    """A tiny run of the function-level comparison: both bounds timed, ours at
+    least its own fit (it includes it)."""
+    cfg = dataclasses.replace(bench.settings(True, None), repeats=1, min_seconds=0.0)
+    r = bench.bench_check_cost(cfg, 3, quiet=True)
+    assert r["check_cost_setup"]["poses"] == 3
+    us = r["check_cost_us_per_cpu"]
+    assert all(_positive(us[k]) for k in ("paper", "ours", "ours_fit"))
+    assert r["check_cost_ours_over_paper"] == pytest.approx(us["ours"] / us["paper"])
 
 
 def test_bench_of_one_method_runs_the_steps_it_reports():

@@ -572,3 +572,25 @@ def test_dirichlet_checks_in_row_blocks_equal_small_batches():
             np.testing.assert_array_equal(
                 np.asarray(whole[name])[part], np.asarray(piece[name])
             )
+
+
+def test_the_paper_bound_alone_leaves_every_other_field_as_it_was():
+    """``our_bound=False`` skips our bound's fit: its field is NaN and every other
+    field, the paper's bound included, is the same bit for bit as with it."""
+    prob = make_problem(seed=5, num_poses=3, num_grasps=120, num_trials=1, name="ob")
+    kw = dict(
+        object_ids=[7], num_rollouts=3, horizon=200, check_every=50,
+        hparams={"k": 20}, progress=False,
+    )  # fmt: skip
+    both = runtime.run(stack([prob]), "legs", **kw)
+    paper = runtime.run(stack([prob]), "legs", our_bound=False, **kw)
+    assert np.all(np.isfinite(both.check_p_lower_eb))
+    assert np.all(np.isnan(paper.check_p_lower_eb))
+    for name in both._fields:
+        if name == "check_p_lower_eb":
+            continue
+        x, y = getattr(both, name), getattr(paper, name)
+        if x is None:
+            assert y is None
+            continue
+        np.testing.assert_array_equal(x, y, err_msg=name)

@@ -2,6 +2,7 @@
 
 The parts: :mod:`legs_jax.bench.sampler` (Beta samplers, random words, memory),
 :mod:`legs_jax.bench.engine` (rollout steps against the reference),
+:mod:`legs_jax.bench.checks` (what a stopping check costs, each bound alone),
 :mod:`legs_jax.bench.projection` (the sweep's projected time),
 :mod:`legs_jax.bench.table` (the printed table) and :mod:`legs_jax.bench.cli` (the
 command line and :func:`run`); :mod:`legs_jax.bench.common` holds what they share.
@@ -9,6 +10,7 @@ command line and :func:`run`); :mod:`legs_jax.bench.common` holds what they shar
 
 from __future__ import annotations
 
+from legs_jax.bench.checks import bench_check_cost, bench_legs_checks
 from legs_jax.bench.cli import build_parser, main, run
 from legs_jax.bench.common import (
     CHECK_EVERY,
@@ -43,7 +45,9 @@ __all__ = [
     "MAX_HOST_DEVICES",
     "SET_SIZES",
     "Settings",
+    "bench_check_cost",
     "bench_jax_engine",
+    "bench_legs_checks",
     "bench_memory",
     "bench_reference",
     "bench_reference_all_cores",

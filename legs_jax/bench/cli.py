@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from legs_jax.bench.checks import bench_check_cost, bench_legs_checks
 from legs_jax.bench.common import (
     _DESCRIPTION,
     _PROG,
@@ -86,6 +87,8 @@ def run(cfg: Settings, quiet: bool = False) -> dict[str, Any]:
                 row["ratio_all_cores"] = row["jax"] / row["numpy_all_cores"]
         steps[method] = row
     result["steps_per_s"] = steps
+    result.update(bench_check_cost(cfg, cfg.poses, quiet))
+    result.update(bench_legs_checks(cfg, problem, quiet))
     result["engine_setup"] = {
         "poses": cfg.poses,
         "grasps": cfg.grasps,

@@ -20,7 +20,8 @@ from typing import Any
 _PROG = "python -m legs_jax.bench"
 _DESCRIPTION = (
     "Measure exact Beta samples/s (legs_jax vs jax.random.beta vs NumPy), "
-    "rollout steps/s of the JAX engine vs the NumPy reference, and project "
+    "rollout steps/s of the JAX engine vs the NumPy reference, the cost of a "
+    "stopping check (the paper's bound and ours), and project "
     "the wall time of the full sweep (python -m legs_jax.sweep --all)."
 )
 

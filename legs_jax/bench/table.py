@@ -116,6 +116,8 @@ def format_table(r: dict[str, Any]) -> str:
                 f"  {method:<16}"
                 + "".join(f"{_fmt_rate(by_poses[c][method]):>10}" for c in cols)
             )
+    if "check_cost_us_per_cpu" in r:
+        lines += ["", *_check_lines(r)]
     lines += [
         "",
         f"Projected wall time of `python -m legs_jax.sweep --all` "
@@ -129,3 +131,27 @@ def format_table(r: dict[str, Any]) -> str:
     for name, minutes in r["projected_minutes_per_experiment"].items():
         lines.append(f"  {name:<16} {minutes:8.1f} min")
     return "\n".join(lines)
+
+
+def _check_lines(r: dict[str, Any]) -> list[str]:
+    """The stopping checks: each bound alone, and LEGS with and without them."""
+    st = r["check_cost_setup"]
+    us = r["check_cost_us_per_cpu"]
+    added = r["legs_checks_added_us_per_check"]
+    steps = r["legs_checks_steps_per_cpu_s"]
+    return [
+        f"Stopping checks (same shapes: {st['rows']} rollouts, P={st['poses']}, "
+        f"{st['slots']} slots a pose, M={st['M']}; CPU microseconds per check of "
+        "one rollout, timed in turns)",
+        f"  the paper's bound alone {us['paper']:8.0f} us",
+        f"  ours alone              {us['ours']:8.0f} us "
+        f"({r['check_cost_ours_over_paper']:.2f}x the paper's; its fit "
+        f"{us['ours_fit']:.0f} us)",
+        f"  LEGS ({r['legs_checks_rollouts']} rollouts): "
+        f"{_fmt_rate(steps['none'])} steps/cpu-s without checks, "
+        f"{_fmt_rate(steps['paper'])} with the paper's bound, "
+        f"{_fmt_rate(steps['both'])} with both "
+        f"({r['legs_checks_both_over_none']:.2f}x the time without)",
+        f"  a check adds: the paper's bound {added['paper']:.0f} us, ours beside it "
+        f"(the same Dirichlet draws) {added['ours']:.0f} us",
+    ]

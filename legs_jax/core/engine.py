@@ -433,6 +433,7 @@ def simulate(
     dirichlet: bool = True,
     eb_leave_out_rec: bool = True,
     eb_fit_start: str = "pooled",
+    our_bound: bool = True,
 ) -> dict[str, jax.Array]:
     """Run B rollouts of ``method`` for ``horizon`` steps (pure; jit- and vmap-able).
 
@@ -459,12 +460,14 @@ def simulate(
       eb_fit_start: where our bound's fit of G_s starts (``start`` of
         :func:`legs_jax.core.stopping.eb_posterior`: ``"pooled"``, the default,
         or ``"uniform"``, the earlier bound).
+      our_bound: compute our bound at the checks (the default; False: only the
+        paper's bound, without our bound's fit, e.g. to time it).
     Returns:
       dict of arrays with leading axis B: ``gaps`` [B, 1 + H // L] (steps 0, L,
       2L, ...; L = gcd(record_every, check_every)), ``final_gap``,
       ``final_performance``, ``successes``, ``distinct_grasps``, ``replacements``
       [B], and when checks run ``check_p_lower``, ``check_p_lower_attempted``,
-      ``check_p_lower_eb`` (our bound), ``check_true_performance`` [B, C2]
+      ``check_p_lower_eb`` (our bound, with ``our_bound``), ``check_true_performance`` [B, C2]
       (and ``active_set`` [B, C2, P, k]).
     """
     m = method
@@ -562,7 +565,8 @@ def simulate(
         )
         if attempted_variant:
             out["check_values_attempted"] = v_att.astype(jnp.float32)
-        out["check_eb_post"] = _eb_post(c)
+        if our_bound:
+            out["check_eb_post"] = _eb_post(c)
         if record_active_set:
             if m.active_set is None:
                 act = jnp.full((B, P, m.active_width(cfg)), -1, jnp.int32)

@@ -261,6 +261,7 @@ def run(
     record_active_set: bool = False,
     eb_leave_out_rec: bool = True,
     eb_fit_start: str = "pooled",
+    our_bound: bool = True,
     devices: Sequence[jax.Device] | None = None,
     batch_size: int | None = None,
     progress: bool | Callable[[int], Any] | None = None,
@@ -291,6 +292,8 @@ def run(
         own outcomes (:func:`simulate`; the default).
       eb_fit_start: where our bound's fit of G_s starts: ``"pooled"`` (the
         default) or ``"uniform"`` (the earlier bound, kept to compare).
+      our_bound: compute our bound at the checks (the default); False: the
+        paper's bound only (``check_p_lower_eb`` is NaN), which saves its fit.
       devices: devices to shard the rollouts over (default: all local devices).
         On CPU, JAX shows one device unless ``XLA_FLAGS`` holds
         ``--xla_force_host_platform_device_count=<cores>`` before JAX starts;
@@ -439,7 +442,7 @@ def run(
             attempted_variant=bool(stop_variant_attempted),
             record_active_set=bool(record_active_set),
             eb_leave_out_rec=bool(eb_leave_out_rec),
-            eb_fit_start=str(eb_fit_start),
+            eb_fit_start=str(eb_fit_start), our_bound=bool(our_bound),
         )  # fmt: skip
         checks_fn = compiled_checks(devices, True) if check_every else None
         pending = []
@@ -475,9 +478,9 @@ def run(
 
     shape = (G, O, T, R)
 
-    def get(name, dtype=None, extra=()):
+    def get(name, dtype=None, extra=(), missing=0):
         if name not in results:
-            return np.zeros(shape + extra, dtype or np.float32)
+            return np.full(shape + extra, missing, dtype or np.float32)
         a = results[name]
         return a.reshape(shape + a.shape[1:]).astype(dtype or a.dtype, copy=False)
 
@@ -496,7 +499,7 @@ def run(
         active_set=(
             get("active_set", np.int32, (C2, P, width)) if record_active_set else None
         ),
-        check_p_lower_eb=get("check_p_lower_eb", np.float32, (C2,)),
+        check_p_lower_eb=get("check_p_lower_eb", np.float32, (C2,), np.nan),
     )
 
 

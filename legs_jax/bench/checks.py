@@ -1,0 +1,162 @@
+"""What a stopping check costs: the paper's bound and ours side by side, on the
+same problem with the same number of Monte Carlo samples M, and LEGS's time
+without checks, with the paper's bound only and with both.
+
+One check of one rollout, per bound alone:
+
+- the paper's: M Dirichlet draws of λ' (:func:`legs_jax.core.sampling.gamma_bins`)
+  and the δ_stop quantile of Σ_s λ'_s p̂*_s
+  (:func:`legs_jax.core.engine.dirichlet_quantiles`, one value vector);
+- ours: the empirical-Bayes fit of every pose's G_s and the recommended grasps'
+  posteriors (:func:`legs_jax.core.stopping.eb_posterior`), M draws p'_s from
+  them (:func:`legs_jax.core.stopping.draw_values`), the same M Dirichlet draws
+  and the quantile of Σ_s λ'_s p'_s.
+
+Their inputs are a LEGS rollout's at a check (its slot counts, a recommended
+grasp a pose): the cost depends on the shapes (rollouts, poses, slots, M), not
+on the values. The engine computes both on the same λ' draws, so a run that
+records both pays the Dirichlet draws once.
+
+JAX and the modules that load it are imported inside the functions: JAX must
+start after the benchmark has set one host device per core
+(:func:`legs_jax.bench.common._set_host_devices`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from legs_jax.bench.common import (
+    CHECK_EVERY,
+    Settings,
+    _interleaved_rates,
+    _say,
+)
+
+# Rollouts of one timed call of the function-level comparison: one block of the
+# engine's checks (``engine._CHECK_ROWS``).
+CHECK_ROWS = 32
+
+
+def _check_inputs(rows: int, poses: int, slots: int, seed: int = 0):
+    """LEGS-like inputs of a check: [rows, poses, slots] counts, about half of
+    the slots attempted, one recommended slot a pose, every pose observed."""
+    rng = np.random.default_rng(seed)
+    shape = (rows, poses, slots)
+    tries = np.where(rng.uniform(size=shape) < 0.5, rng.integers(1, 12, shape), 0)
+    p = rng.beta(2.0, 2.0, shape)
+    succ = rng.binomial(tries, p).astype(np.float32)
+    fail = (tries - succ).astype(np.float32)
+    fit = tries > 0
+    rec = np.zeros(shape, bool)
+    rec[:, :, 0] = True
+    fit[:, :, 0] = True
+    counts = rng.integers(1, 200, (rows, poses)).astype(np.float32)
+    observed = np.ones((rows, poses), bool)
+    values = rng.uniform(0.3, 0.9, (rows, 1, poses)).astype(np.float32)
+    return succ, fail, fit, rec, counts, observed, values
+
+
+def bench_check_cost(cfg: Settings, poses: int, quiet: bool) -> dict[str, Any]:
+    """Checks per CPU second of each bound alone, same shapes and M, timed in
+    turns (:func:`legs_jax.bench.common._interleaved_rates`)."""
+    import jax
+    import jax.numpy as jnp
+
+    from legs_jax.core import engine, stopping
+    from legs_jax.core.constants import DELTA_STOP, NUM_DIRICHLET_SAMPLES
+
+    M = NUM_DIRICHLET_SAMPLES
+    slots = 100  # LEGS's active set, k
+    succ, fail, fit, rec, counts, observed, values = (
+        jnp.asarray(x) for x in _check_inputs(CHECK_ROWS, poses, slots)
+    )
+    keys = jax.random.split(jax.random.key(0), CHECK_ROWS)
+
+    @jax.jit
+    def paper(keys, counts, observed, values):
+        return engine.dirichlet_quantiles(keys, counts, observed, values, DELTA_STOP, M)
+
+    @jax.jit
+    def ours(keys, succ, fail, fit, rec, counts, observed):
+        post = stopping.eb_posterior(succ, fail, fit, rec)
+        draws = stopping.draw_values(keys, post, M)
+        none = jnp.zeros((CHECK_ROWS, 0, poses), jnp.float32)
+        return engine.dirichlet_quantiles(
+            keys, counts, observed, none, DELTA_STOP, M, draws=draws
+        )
+
+    @jax.jit
+    def fit_only(succ, fail, fit, rec):
+        return stopping.eb_posterior(succ, fail, fit, rec)
+
+    def block(x):
+        return lambda: jax.block_until_ready(x())
+
+    fns = {
+        "paper": block(lambda: paper(keys, counts, observed, values)),
+        "ours": block(lambda: ours(keys, succ, fail, fit, rec, counts, observed)),
+        "ours_fit": block(lambda: fit_only(succ, fail, fit, rec)),
+    }
+    _say(f"checks: the two bounds, {poses} poses, M = {M}", quiet)
+    rates = _interleaved_rates(fns, CHECK_ROWS, cfg.repeats, cfg.min_seconds)
+    us = {k: 1e6 / r["per_cpu_s"] for k, r in rates.items()}
+    return {
+        "check_cost_setup": {"rows": CHECK_ROWS, "poses": poses, "slots": slots, "M": M},
+        "check_cost_us_per_cpu": us,
+        "check_cost_ours_over_paper": us["ours"] / us["paper"],
+    }
+
+
+def bench_legs_checks(cfg: Settings, problem, quiet: bool) -> dict[str, Any]:
+    """LEGS's rollout steps per CPU second on ``problem``: without checks, with
+    the paper's bound at every check, with both bounds (as the sweep records
+    them), timed in turns."""
+    from legs_jax import runtime
+    from legs_jax.core.problem import stack
+
+    batch = stack([problem])
+    per_trial = max(1, cfg.rollouts_sparse // 4 // cfg.trials)
+    steps = cfg.trials * per_trial * cfg.horizon
+
+    def variant(check_every, our_bound):
+        def once():
+            runtime.run(
+                batch,
+                "legs",
+                object_ids=[0],
+                num_rollouts=per_trial,
+                horizon=cfg.horizon,
+                check_every=check_every,
+                our_bound=our_bound,
+                progress=False,
+            )
+
+        return once
+
+    fns = {
+        "none": variant(None, True),
+        "paper": variant(CHECK_EVERY, False),
+        "both": variant(CHECK_EVERY, True),
+    }
+    _say("checks: LEGS without checks, with the paper's bound, with both", quiet)
+    for fn in fns.values():
+        fn()  # compile
+    rates = _interleaved_rates(fns, steps, cfg.repeats, cfg.min_seconds)
+    per_cpu = {k: r["per_cpu_s"] for k, r in rates.items()}
+    checks = steps // CHECK_EVERY
+    # CPU seconds a check of one rollout adds: (time with - time without) / checks
+    added = {
+        "paper": steps / per_cpu["paper"] - steps / per_cpu["none"],
+        "ours": steps / per_cpu["both"] - steps / per_cpu["paper"],
+    }
+    return {
+        "legs_checks_steps_per_cpu_s": per_cpu,
+        "legs_checks_rollouts": cfg.trials * per_trial,
+        "legs_checks_added_us_per_check": {
+            k: 1e6 * v / checks for k, v in added.items()
+        },
+        "legs_checks_both_over_none": per_cpu["none"] / per_cpu["both"],
+    }
