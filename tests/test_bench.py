@@ -220,9 +220,14 @@ def test_table_shows_the_check_costs_it_is_given():
     text = bench.format_table(r)
     assert "P=8, 100 slots a pose, M=3000" in text
     assert "the paper's bound alone      300 us" in text
-    assert "ours alone                   450 us (1.50x the paper's; its fit 47 us)" in text
+    assert "ours alone                   450 us (1.50x the paper's; its fit 47 us)" in (
+        text
+    )
     assert "200.0 k steps/cpu-s without checks, 120.0 k with the paper's" in text
-    assert "the paper's bound 350 us, ours beside it (the same Dirichlet draws) 170 us" in text
+    assert (
+        "the paper's bound 350 us, ours beside it (the same Dirichlet draws) 170 us"
+        in text
+    )
 
 
 def test_check_cost_bench_times_both_bounds_on_the_same_shapes():

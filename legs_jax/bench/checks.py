@@ -104,7 +104,7 @@ def bench_check_cost(cfg: Settings, poses: int, quiet: bool) -> dict[str, Any]:
     rates = _interleaved_rates(fns, CHECK_ROWS, cfg.repeats, cfg.min_seconds)
     us = {k: 1e6 / r["per_cpu_s"] for k, r in rates.items()}
     return {
-        "check_cost_setup": {"rows": CHECK_ROWS, "poses": poses, "slots": slots, "M": M},
+        "check_cost_setup": dict(rows=CHECK_ROWS, poses=poses, slots=slots, M=M),
         "check_cost_us_per_cpu": us,
         "check_cost_ours_over_paper": us["ours"] / us["paper"],
     }

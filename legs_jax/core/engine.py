@@ -467,7 +467,8 @@ def simulate(
       2L, ...; L = gcd(record_every, check_every)), ``final_gap``,
       ``final_performance``, ``successes``, ``distinct_grasps``, ``replacements``
       [B], and when checks run ``check_p_lower``, ``check_p_lower_attempted``,
-      ``check_p_lower_eb`` (our bound, with ``our_bound``), ``check_true_performance`` [B, C2]
+      ``check_p_lower_eb`` (our bound, with ``our_bound``),
+      ``check_true_performance`` [B, C2]
       (and ``active_set`` [B, C2, P, k]).
     """
     m = method
