@@ -209,7 +209,13 @@ def test_table_shows_the_figures_it_is_given():
 
 def test_table_shows_the_check_costs_it_is_given():
     r = _result(
-        check_cost_setup={"rows": 32, "poses": 8, "slots": 100, "M": 3000},
+        check_cost_setup={
+            "rows": 32,
+            "poses": 8,
+            "slots": 100,
+            "M": 3000,
+            "M_ours": 1000,
+        },
         check_cost_us_per_cpu={"paper": 300.0, "ours": 450.0, "ours_fit": 47.0},
         check_cost_ours_over_paper=1.5,
         legs_checks_steps_per_cpu_s={"none": 2.0e5, "paper": 1.2e5, "both": 1.0e5},
@@ -218,7 +224,7 @@ def test_table_shows_the_check_costs_it_is_given():
         legs_checks_both_over_none=2.0,
     )
     text = bench.format_table(r)
-    assert "P=8, 100 slots a pose, M=3000" in text
+    assert "P=8, 100 slots a pose, M=3000, ours M'=1000" in text
     assert "the paper's bound alone      300 us" in text
     assert "ours alone                   450 us (1.50x the paper's; its fit 47 us)" in (
         text

@@ -9,6 +9,7 @@ import pytest
 from scipy import stats
 
 from legs_jax.core import engine, stopping
+from legs_jax.errors import ConfigError
 
 # ------------------------------------------------------------------ the pieces
 
@@ -261,7 +262,7 @@ def test_miss_rate_is_at_most_delta_stop_where_the_model_holds(leave_out_rec, st
         start=start,
     )
     keys = jax.random.split(jax.random.key(5), n)
-    draws = stopping.draw_values(keys, post, engine.NUM_DIRICHLET_SAMPLES)
+    draws = stopping.draw_values(keys, post, engine.NUM_EB_SAMPLES)
     lo = np.asarray(
         engine.dirichlet_quantiles(
             keys,
@@ -364,7 +365,7 @@ def test_miss_rate_is_at_most_delta_stop_where_the_model_is_wrong(case):
         rec[..., None] == np.arange(succ.shape[-1]),
     )  # fmt: skip
     keys = jax.random.split(jax.random.key(5), n)
-    draws = stopping.draw_values(keys, post, engine.NUM_DIRICHLET_SAMPLES)
+    draws = stopping.draw_values(keys, post, engine.NUM_EB_SAMPLES)
     values = np.zeros((n, 1, counts.shape[1]), np.float32)
     lo = engine.dirichlet_quantiles(
         keys, counts.astype(np.float32), counts > 0, values, draws=draws
@@ -372,3 +373,35 @@ def test_miss_rate_is_at_most_delta_stop_where_the_model_is_wrong(case):
     ours = np.asarray(lo)[:, 1]
     tol = 3 * np.sqrt(engine.DELTA_STOP * (1 - engine.DELTA_STOP) / n)
     assert np.mean(ours > truth) <= engine.DELTA_STOP + tol
+
+
+def test_ours_takes_the_first_samples_of_the_same_dirichlet_draws():
+    """Our bound's quantile is over the first NUM_EB_SAMPLES of the M Dirichlet
+    samples: computed beside the paper's bound or alone on M' samples it is the
+    same bit for bit, and the paper's bound does not change with it."""
+    n = 6
+    counts, observed, succ, fail, rec, plug_in, _ = _synthetic_checks(n, 7)
+    N = succ.shape[-1]
+    post = stopping.eb_posterior(
+        succ.astype(np.float32), fail.astype(np.float32), (succ + fail) > 0,
+        rec[..., None] == np.arange(N),
+    )  # fmt: skip
+    keys = jax.random.split(jax.random.key(3), n)
+    m2 = engine.NUM_EB_SAMPLES
+    assert m2 < engine.NUM_DIRICHLET_SAMPLES
+    draws = stopping.draw_values(keys, post, m2)
+    c, v = counts.astype(np.float32), plug_in[:, None, :].astype(np.float32)
+    both = np.asarray(engine.dirichlet_quantiles(keys, c, observed, v, draws=draws))
+    paper = np.asarray(engine.dirichlet_quantiles(keys, c, observed, v))
+    none = np.zeros((n, 0, c.shape[1]), np.float32)
+    alone = np.asarray(
+        engine.dirichlet_quantiles(
+            keys, c, observed, none, engine.DELTA_STOP, m2, draws=draws
+        )
+    )
+    assert both.shape == (n, 2) and alone.shape == (n, 1)
+    np.testing.assert_array_equal(both[:, 0], paper[:, 0])
+    np.testing.assert_array_equal(both[:, 1], alone[:, 0])
+    with pytest.raises(ConfigError):
+        engine.dirichlet_quantiles(keys, c, observed, v, engine.DELTA_STOP, m2 - 1,
+                                   draws=draws)  # fmt: skip

@@ -1,6 +1,7 @@
 """What a stopping check costs: the paper's bound and ours side by side, on the
-same problem with the same number of Monte Carlo samples M, and LEGS's time
-without checks, with the paper's bound only and with both.
+same problem, and LEGS's time without checks, with the paper's bound only and
+with both. The paper's bound takes its quantile over M Dirichlet samples; ours
+over the first M' of the same samples (``NUM_EB_SAMPLES``).
 
 One check of one rollout, per bound alone:
 
@@ -8,9 +9,9 @@ One check of one rollout, per bound alone:
   and the δ_stop quantile of Σ_s λ'_s p̂*_s
   (:func:`legs_jax.core.engine.dirichlet_quantiles`, one value vector);
 - ours: the empirical-Bayes fit of every pose's G_s and the recommended grasps'
-  posteriors (:func:`legs_jax.core.stopping.eb_posterior`), M draws p'_s from
-  them (:func:`legs_jax.core.stopping.draw_values`), the same M Dirichlet draws
-  and the quantile of Σ_s λ'_s p'_s.
+  posteriors (:func:`legs_jax.core.stopping.eb_posterior`), M' draws p'_s from
+  them (:func:`legs_jax.core.stopping.draw_values`), the first M' of the same
+  Dirichlet draws and the quantile of Σ_s λ'_s p'_s.
 
 Their inputs are a LEGS rollout's at a check (its slot counts, a recommended
 grasp a pose): the cost depends on the shapes (rollouts, poses, slots, M), not
@@ -66,9 +67,13 @@ def bench_check_cost(cfg: Settings, poses: int, quiet: bool) -> dict[str, Any]:
     import jax.numpy as jnp
 
     from legs_jax.core import engine, stopping
-    from legs_jax.core.constants import DELTA_STOP, NUM_DIRICHLET_SAMPLES
+    from legs_jax.core.constants import (
+        DELTA_STOP,
+        NUM_DIRICHLET_SAMPLES,
+        NUM_EB_SAMPLES,
+    )
 
-    M = NUM_DIRICHLET_SAMPLES
+    M, M2 = NUM_DIRICHLET_SAMPLES, NUM_EB_SAMPLES
     slots = 100  # LEGS's active set, k
     succ, fail, fit, rec, counts, observed, values = (
         jnp.asarray(x) for x in _check_inputs(CHECK_ROWS, poses, slots)
@@ -82,10 +87,10 @@ def bench_check_cost(cfg: Settings, poses: int, quiet: bool) -> dict[str, Any]:
     @jax.jit
     def ours(keys, succ, fail, fit, rec, counts, observed):
         post = stopping.eb_posterior(succ, fail, fit, rec)
-        draws = stopping.draw_values(keys, post, M)
+        draws = stopping.draw_values(keys, post, M2)
         none = jnp.zeros((CHECK_ROWS, 0, poses), jnp.float32)
         return engine.dirichlet_quantiles(
-            keys, counts, observed, none, DELTA_STOP, M, draws=draws
+            keys, counts, observed, none, DELTA_STOP, M2, draws=draws
         )
 
     @jax.jit
@@ -104,7 +109,9 @@ def bench_check_cost(cfg: Settings, poses: int, quiet: bool) -> dict[str, Any]:
     rates = _interleaved_rates(fns, CHECK_ROWS, cfg.repeats, cfg.min_seconds)
     us = {k: 1e6 / r["per_cpu_s"] for k, r in rates.items()}
     return {
-        "check_cost_setup": dict(rows=CHECK_ROWS, poses=poses, slots=slots, M=M),
+        "check_cost_setup": dict(
+            rows=CHECK_ROWS, poses=poses, slots=slots, M=M, M_ours=M2
+        ),
         "check_cost_us_per_cpu": us,
         "check_cost_ours_over_paper": us["ours"] / us["paper"],
     }

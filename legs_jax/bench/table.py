@@ -141,8 +141,8 @@ def _check_lines(r: dict[str, Any]) -> list[str]:
     steps = r["legs_checks_steps_per_cpu_s"]
     return [
         f"Stopping checks (same shapes: {st['rows']} rollouts, P={st['poses']}, "
-        f"{st['slots']} slots a pose, M={st['M']}; CPU microseconds per check of "
-        "one rollout, timed in turns)",
+        f"{st['slots']} slots a pose, M={st['M']}, ours M'={st['M_ours']}; CPU "
+        "microseconds per check of one rollout, timed in turns)",
         f"  the paper's bound alone {us['paper']:8.0f} us",
         f"  ours alone              {us['ours']:8.0f} us "
         f"({r['check_cost_ours_over_paper']:.2f}x the paper's; its fit "

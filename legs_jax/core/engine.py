@@ -41,7 +41,11 @@ import numpy as np
 
 from legs_jax.core import keys as keys_mod
 from legs_jax.core import sampling, stopping
-from legs_jax.core.constants import DELTA_STOP, NUM_DIRICHLET_SAMPLES
+from legs_jax.core.constants import (
+    DELTA_STOP,
+    NUM_DIRICHLET_SAMPLES,
+    NUM_EB_SAMPLES,
+)
 from legs_jax.core.methods.base import Config, Ctx, Method, Tables
 from legs_jax.core.problem import ProblemBatch
 from legs_jax.errors import ConfigError
@@ -49,6 +53,7 @@ from legs_jax.errors import ConfigError
 __all__ = [
     "DELTA_STOP",
     "NUM_DIRICHLET_SAMPLES",
+    "NUM_EB_SAMPLES",
     "EnvState",
     "AgentStep",
     "agent_step",
@@ -185,8 +190,10 @@ def dirichlet_quantiles(
       counts: [B, P] drop counts c_s.
       observed: [B, P] bool.
       values: [B, V, P] p̂*_s per value vector.
-      draws: optional [B, M, P] values drawn per sample (our bound,
-        :mod:`legs_jax.core.stopping`), scored on the same λ' as one more row.
+      draws: optional [B, M', P] values drawn per sample (our bound,
+        :mod:`legs_jax.core.stopping`; M' <= M, ``NUM_EB_SAMPLES`` in the engine),
+        scored on the first M' of the same λ' samples as one more row, with its
+        own δ-quantile of M' values.
     Returns:
       [B, V] f32 bounds p̂_ℓ ([B, V + 1] with ``draws``, theirs last).
     """
@@ -209,24 +216,32 @@ def dirichlet_quantiles(
     v = jnp.where(observed[:, None, :], values, 0.0)  # [B, V, P]
     # Σ_s v_s g_s in a fixed order, written out: XLA fuses it into one pass
     # (a dot or a reduction over a broadcast was 4x slower on CPU here).
-    p = jnp.stack(
-        [
-            sum(g[:, :, s] * v[:, i, s : s + 1] for s in range(P)) / total
-            for i in range(values.shape[1])
-        ]
-        + (
-            []
-            if draws is None
-            else [
-                sum(
-                    g[:, :, s] * jnp.where(observed[:, s : s + 1], draws[:, :, s], 0.0)
-                    for s in range(P)
-                )
-                / total
-            ]
-        ),
-        axis=1,
-    )  # [B, V (+1), M]
+    rows = [
+        sum(g[:, :, s] * v[:, i, s : s + 1] for s in range(P)) / total
+        for i in range(values.shape[1])
+    ]
+    lo = _quantile(jnp.stack(rows, axis=1), delta) if rows else jnp.zeros((B, 0))
+    if draws is None:
+        return lo
+    # Ours on the first M' of the same λ' samples (M' = draws.shape[1] <= M).
+    m2 = draws.shape[1]
+    if m2 > M:
+        raise ConfigError(f"{m2} value draws for {M} Dirichlet samples")
+    ours = (
+        sum(
+            g[:, :m2, s] * jnp.where(observed[:, s : s + 1], draws[:, :, s], 0.0)
+            for s in range(P)
+        )
+        / total[:, :m2]
+    )  # [B, M']
+    return jnp.concatenate([lo, _quantile(ours[:, None], delta)], axis=1)
+
+
+def _quantile(p: jax.Array, delta: float) -> jax.Array:
+    """[B, V, M] -> [B, V]: the δ-quantile of each row's M values, interpolated
+    linearly between the two order statistics around δ (M - 1), as
+    ``np.quantile`` does."""
+    M = p.shape[-1]
     pos = delta * (M - 1)
     lo = int(math.floor(pos))
     hi = min(lo + 1, M - 1)
@@ -295,7 +310,7 @@ def dirichlet_checks(
             if pe:
                 ok = jnp.all(jnp.isfinite(pe[0]), axis=(1, 2))
                 safe = jnp.where(ok[:, None, None], pe[0], 1.0 / stopping.GRID)
-                draws = stopping.draw_values(k, safe, NUM_DIRICHLET_SAMPLES)
+                draws = stopping.draw_values(k, safe, NUM_EB_SAMPLES)
             lo = dirichlet_quantiles(
                 k, c, o, v, DELTA_STOP, NUM_DIRICHLET_SAMPLES, draws=draws
             )

@@ -158,12 +158,13 @@ def _programs(method: str, cfg: Config):
         succ, fail, fit, ids = m.counts(ms, ctx(tables, hp), cfg)
         hit = (ids == rec[..., None]) & (rec[..., None] >= 0)
         post = stopping.eb_posterior(succ, fail, fit, hit, forgotten)
-        draws = stopping.draw_values(key, post, engine.NUM_DIRICHLET_SAMPLES)
+        draws = stopping.draw_values(key, post, engine.NUM_EB_SAMPLES)
         values = jnp.zeros(counts.shape[:1] + (1,) + counts.shape[1:], jnp.float32)
         return bound(key, counts, observed, values, draws)[:, -1]
 
     def bound(key, counts, observed, values, draws=None):
-        """The Dirichlet bound (δ = DELTA_STOP, NUM_DIRICHLET_SAMPLES samples)."""
+        """The Dirichlet bound (δ = DELTA_STOP, NUM_DIRICHLET_SAMPLES samples;
+        ours, with ``draws``, on the first NUM_EB_SAMPLES of them)."""
         return engine.dirichlet_quantiles(key, counts, observed, values, draws=draws)
 
     return dict(
