@@ -77,6 +77,7 @@ ARMS = (
     ("tql", "", {}),
     ("bayes_ucb_100", "", {}),
     ("bayes_ucb_2000", "", {}),
+    ("pooled_ucb", "", {}),
     # LEGS with the settings the measurements point at (the pruning never fires).
     ("legs", "gamma", {"gamma": (0.5, 0.8)}),
     ("legs", "k20", {"k": 20}),
