@@ -52,6 +52,8 @@ TABLE_ORDER = (
 )
 # The method the paper proposes: the subject of the win counts and the prose.
 PROPOSED = "legs"
+# Our own method: the report sets it against every other row but the oracle.
+OURS = "pooled_ucb"
 # Labels and figure styles of the variants (a method's own are in its declaration).
 VARIANTS = {
     ("borges_2000", "orig_prior"): dict(
