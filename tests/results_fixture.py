@@ -50,6 +50,7 @@ LEVEL = {
     ("tql", ""): 0.26,
     ("bayes_ucb_100", ""): 0.14,
     ("bayes_ucb_2000", ""): 0.07,
+    ("pooled_ucb", ""): 0.13,
 }
 DEFAULTS = dict(
     s=1.0, prior_offset=1.0, delta=0.05, gamma=0.2, k=100, n=100, epsilon=0.1, eta=0.1

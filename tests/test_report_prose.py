@@ -36,3 +36,29 @@ def test_comparisons_follow_the_numbers():
     assert "; above" not in text and "is below Dex-Net" in text
     assert "every difference outside the combined standard error" in text
     assert "lowest compared row, LEGS (0.040), is not above" in text
+
+
+def test_our_method_is_set_against_the_lowest_other_row():
+    """Means, their combined standard error and the paired difference, worked
+    out by hand for three objects; the oracle row (lower still) is left out."""
+    from experiments.main import prose
+
+    rows = []
+    for method, gaps in {
+        "pooled_ucb": (0.10, 0.20, 0.30),
+        "bayes_ucb_100": (0.12, 0.21, 0.33),
+        "legs": (0.20, 0.30, 0.40),
+        "k100_ub": (0.01, 0.02, 0.03),
+    }.items():
+        for obj, g in zip("abc", gaps, strict=True):
+            rows.append(
+                dict(set="s", object=obj, method=method, variant="", gap_mean=g)
+            )
+    (line,) = prose._ours_lines(pd.DataFrame(rows), "s")
+    # ours 0.200 ± 0.1/√3; Bayes-UCB 0.220 ± 0.10536/√3: combined 0.08386
+    assert "0.200 ± 0.058, the lowest of all rows but the oracle" in line
+    assert "(Bayes-UCB (K_s=100), 0.220) -0.0200" in line
+    assert "0.2 combined standard errors of the two means (0.0839)" in line
+    # paired differences -0.02, -0.01, -0.03: mean -0.02, SE 0.01/√3
+    assert "paired over the 3 objects -0.0200 ± 0.0058" in line
+    assert "lower on 3 of 3 objects" in line

@@ -96,7 +96,34 @@ def _table_one_sentences(main: Mapping) -> list[str]:
             out.append(line)
         out += _extra_row_lines(d, comp)
         out += _ours_lines(main["gaps"], s)
+        out += _early_lines(main.get("curves"), s)
     return out
+
+
+# Earlier horizons at which our method's gap is set beside LEGS's and Bayes-UCB's
+# (a robot often stops early).
+EARLY = (500, 1000)
+
+
+def _early_lines(curves: pd.DataFrame | None, set_: str) -> list[str]:
+    """Mean gap across the set's objects at the EARLY horizons (and the last
+    step) of our method, LEGS and Bayes-UCB (K=100), from the gap curves."""
+    if curves is None or not len(curves):
+        return []
+    c = curves[(curves["set"] == set_) & (curves["variant"] == "")]
+    names = (sweep.OURS, ARMS.proposed, "bayes_ucb_100")
+    c = c[c["method"].isin(names)]
+    steps = [h for h in (*EARLY, int(c["step"].max())) if h in set(c["step"])]
+    if sweep.OURS not in set(c["method"]) or not steps:
+        return []
+    at = c[c["step"].isin(steps)].groupby(["step", "method"])["gap_mean"].mean()
+    parts = []
+    for h in steps:
+        row = ", ".join(
+            f"{ARMS.label(m)} {fmt(float(at[(h, m)]))}" for m in names if (h, m) in at
+        )
+        parts.append(f"H = {h}: {row}")
+    return ["  Mean gap across the objects along the run: " + "; ".join(parts) + "."]
 
 
 def _ours_lines(gaps: pd.DataFrame, set_: str) -> list[str]:
@@ -122,7 +149,7 @@ def _ours_lines(gaps: pd.DataFrame, set_: str) -> list[str]:
     z = abs(diff) / combined if combined > 0 else math.nan
     zp = abs(diff) / pse if pse > 0 else math.nan
     return [
-        f"  Ours, {ours}: {fmt(float(mean[sweep.OURS]))} ± "
+        f"  {ours}: {fmt(float(mean[sweep.OURS]))} ± "
         f"{fmt(float(se[sweep.OURS]))}, {lowest}; against the lowest other row "
         f"({ARMS.label(best)}, {fmt(float(mean[best]))}) {diff:+.4f}, "
         f"{z:.1f} combined standard errors of the two means ({combined:.4f}); "
@@ -142,6 +169,7 @@ def _extra_row_lines(d: pd.DataFrame, comp: pd.DataFrame) -> list[str]:
     extra = d[
         ~d["method"].isin(ARMS.competitors)
         & ~d["method"].isin(an.oracle_methods())
+        & (d["method"] != sweep.OURS)  # set against every row in _ours_lines
         & (d["variant"] == "")
     ]
     out = []

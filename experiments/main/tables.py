@@ -252,7 +252,9 @@ def main_tables(res: Results, out: Path) -> tuple[list[Path], dict[str, Any]]:
     files.append(write_csv(t1, out / "table1.csv"))
     files.append(write_csv(gaps, out / "per_object.csv"))
     files.append(write_csv(wins, out / "wins.csv"))
+    curves = res.table("main", "curves") if res.has("main", "curves") else None
     return files, dict(
+        curves=curves,
         gaps=gaps,
         table1=t1,
         wins=wins,

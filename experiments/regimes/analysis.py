@@ -25,6 +25,7 @@ import pandas as pd
 from experiments.regimes import sweep as decl
 from legs_jax import families
 from legs_jax.core import problem as problem_mod
+from legs_jax.report.analysis import oracle_methods
 from legs_jax.report.document import Num, Table, fmt, to_markdown, write_pair
 from legs_jax.report.figures import MissingResults, Run, pyplot, save_figure, write_csv
 
@@ -577,6 +578,7 @@ def _section(ctx: Mapping) -> list[str]:
             f"{Z:g} SE, and not above BORGES (K=2000) by more than {Z:g} SE) appears "
             "on none of the explored problems."
         )
+    L += _ours_lines(t)
     L += _axis_lines(t)
     st = settings_table(s)
     if st is not None:
@@ -603,6 +605,36 @@ def _section(ctx: Mapping) -> list[str]:
         "",
     ]
     return L
+
+
+def _ours_lines(t: pd.DataFrame) -> list[str]:
+    """Our method on every problem against the lowest other arm (the oracle
+    excluded) and against the method it builds on, Bayes-UCB (K=100)."""
+    ours, base = decl.OURS, "bayes_ucb_100"
+    if f"gap_{ours}" not in t or f"gap_{base}" not in t:
+        return []
+    others = [
+        c[4:]
+        for c in t.columns
+        if c.startswith("gap_") and c[4:] != ours and c[4:] not in oracle_methods()
+    ]
+    gap, se = t[f"gap_{ours}"], t[f"se_{ours}"]
+    best = t[[f"gap_{a}" for a in others]].idxmin(axis=1).str[4:]
+    bgap = pd.Series([t.loc[o, f"gap_{a}"] for o, a in best.items()], t.index)
+    bse = pd.Series([t.loc[o, f"se_{a}"] for o, a in best.items()], t.index)
+    worse = t.index[(gap - bgap) > Z * np.hypot(se, bse)]
+    dbase = gap - t[f"gap_{base}"]
+    dse = np.hypot(se, t[f"se_{base}"])
+    lower, higher = t.index[dbase < -Z * dse], t.index[dbase > Z * dse]
+    why = sorted(set(best[worse]))
+    return [
+        f"- Ours, Pooled Bayes-UCB (K=100): above the lowest other arm by more "
+        f"than {Z:g} SE on {len(worse)} of {len(t)} problems ({_names(list(worse))}"
+        f"; the lowest there: {', '.join(why) or 'none'}); against Bayes-UCB "
+        f"(K=100), which it builds on, {fmt(float(dbase.mean()))} on average, "
+        f"lower by more than {Z:g} SE on {len(lower)} ({_names(list(lower))}) and "
+        f"higher on {len(higher)} ({_names(list(higher))})."
+    ]
 
 
 def _axis_lines(t: pd.DataFrame) -> list[str]:

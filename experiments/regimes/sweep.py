@@ -77,12 +77,16 @@ ARMS = (
     ("tql", "", {}),
     ("bayes_ucb_100", "", {}),
     ("bayes_ucb_2000", "", {}),
-    ("pooled_ucb", "", {}),
     # LEGS with the settings the measurements point at (the pruning never fires).
     ("legs", "gamma", {"gamma": (0.5, 0.8)}),
     ("legs", "k20", {"k": 20}),
     ("legs", "n20", {"n": 20}),
+    # Ours: Bayes-UCB (K=100) with each grasp's prior fed by its pose's outcomes.
+    ("pooled_ucb", "", {}),
 )
+
+# Our own method (the report sets it against every other arm).
+OURS = "pooled_ucb"
 
 TRIALS = 5
 ROLLOUTS = 10

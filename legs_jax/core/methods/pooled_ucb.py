@@ -191,7 +191,7 @@ METHOD = Method(
     card=Card(
         label="Pooled Bayes-UCB (K_s=100, ours)",
         short_label="PooledUCB-100",
-        style=dict(color="#9467bd", ls="-", lw=2.4),
+        style=dict(color="#e377c2", ls="-", lw=2.4),
         cost=lambda cfg: float(cfg.top),
         bench_proxy="legs",
         reference=Reference,
