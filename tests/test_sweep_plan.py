@@ -112,7 +112,8 @@ def test_experiment_modules_declare_valid_arms(name):
 def test_paper_grids_and_extra_row():
     main = [sweep.make_arm(*a) for a in experiments.get("main").ARMS]
     paper = set(experiments.get("main").TABLE_ORDER)
-    extra = {"bayes_ucb_100", "bayes_ucb_2000"}  # Table I's rows beyond the paper's
+    # Table I's rows beyond the paper's: Bayes-UCB and our own method
+    extra = {"bayes_ucb_100", "bayes_ucb_2000", "pooled_ucb"}
     assert {a.method for a in main} == paper | extra
     assert paper | extra <= set(methods.names())
     synthetic = [sweep.make_arm(*a) for a in experiments.get("prior_synthetic").ARMS]
