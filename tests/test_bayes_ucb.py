@@ -31,6 +31,18 @@ def _setup(name):
     return m, ctx, cfg, m.init(ctx, cfg)
 
 
+def reached(st, wins, losses, count):
+    """A reachable state of a Bayes-UCB-style method (``inner`` Beta posteriors
+    and ``count`` attempts per pose): an arm's α, β leave the prior only when it
+    is attempted."""
+    inner = st.inner._replace(
+        alpha=st.inner.alpha + wins,
+        beta=st.inner.beta + losses,
+        attempted=jnp.asarray(wins + losses > 0),
+    )
+    return st._replace(inner=inner, count=jnp.asarray(count))
+
+
 @pytest.mark.parametrize("name", ["bayes_ucb_100", "bayes_ucb_2000"])
 def test_choice_is_the_highest_posterior_quantile(name):
     m, ctx, cfg, st = _setup(name)
@@ -40,13 +52,8 @@ def test_choice_is_the_highest_posterior_quantile(name):
     wins = rng.poisson(rng.uniform(0, 3, n)).astype(np.float32)
     losses = rng.poisson(rng.uniform(0, 6, n)).astype(np.float32)
     count = rng.integers(0, 400, (B, P)).astype(np.int32)
-    # a reachable state: an arm's α, β leave the prior only when it is attempted
-    inner = inner._replace(
-        alpha=inner.alpha + wins,
-        beta=inner.beta + losses,
-        attempted=jnp.asarray(wins + losses > 0),
-    )
-    st = st._replace(inner=inner, count=jnp.asarray(count))
+    st = reached(st, wins, losses, count)
+    inner = st.inner
     s = jnp.asarray(rng.integers(0, P, B), jnp.int32)
     keys = jax.random.split(jax.random.key(0), B)
     grasp, slot, _ = jax.jit(m.select, static_argnums=2)(st, ctx, cfg, s, keys)

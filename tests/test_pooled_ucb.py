@@ -11,15 +11,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from scipy import stats
+from test_bayes_ucb import B, P, _setup, reached
 from test_reference import hand_problem
 
-from legs_jax.core import engine, methods
+from legs_jax.core import methods
 from legs_jax.core.methods import pooled_ucb
-from legs_jax.core.methods.base import Config, Ctx
-from legs_jax.core.problem import stack
-from legs_jax.synthetic import make_problem
 
-B, P, K = 64, 3, 150
 M = pooled_ucb.POOL_ATTEMPTS
 
 
@@ -50,34 +47,19 @@ def test_the_pool_by_hand():
     np.testing.assert_array_equal(b, b0[:, :2])
 
 
-def _setup():
-    m = methods.get("pooled_ucb")
-    batch = stack([make_problem(2, num_poses=P, num_grasps=K, num_trials=1)])
-    tables = jax.tree.map(jnp.asarray, engine.make_tables(batch, [0]))
-    hp = m.traced_hparams(s=jnp.full(B, 1.0), prior_offset=jnp.full(B, 1.0))
-    ctx = Ctx(tables, jnp.zeros(B, jnp.int32), hp)
-    cfg = Config(num_poses=P, num_grasps=K)
-    return m, ctx, cfg, m.init(ctx, cfg)
-
-
 def test_choice_and_recommendation_read_the_pooled_posteriors():
     """From random reachable states: the choice is the highest 1 − 1/(t + 1)
     quantile and the recommendation the highest mean of the pooled posteriors,
     computed here with SciPy in float64 from the counts."""
-    m, ctx, cfg, st = _setup()
+    m, ctx, cfg, st = _setup("pooled_ucb")
     rng = np.random.default_rng(0)
-    inner = st.inner
-    n = inner.alpha.shape
+    n = st.inner.alpha.shape
     tried = rng.uniform(size=n) < 0.3
     wins = np.where(tried, rng.poisson(1.5, n), 0).astype(np.float32)
     losses = np.where(tried, rng.poisson(4, n), 0).astype(np.float32)
     count = rng.integers(0, 400, (B, P)).astype(np.int32)
-    inner = inner._replace(
-        alpha=inner.alpha + wins,
-        beta=inner.beta + losses,
-        attempted=jnp.asarray(wins + losses > 0),
-    )
-    st = st._replace(inner=inner, count=jnp.asarray(count))
+    st = reached(st, wins, losses, count)
+    inner = st.inner
     s = jnp.asarray(rng.integers(0, P, B), jnp.int32)
     keys = jax.random.split(jax.random.key(0), B)
     grasp, slot, _ = jax.jit(m.select, static_argnums=2)(st, ctx, cfg, s, keys)
