@@ -203,3 +203,34 @@ def test_smoke_problem_folder_is_inside_the_output(tmp_path):
     assert len(plan.objects) == 2
     for o in plan.objects:
         assert Path(o.path).is_relative_to(tmp_path)
+
+
+def test_our_method_against_the_lowest_other_arm(fixture_run):
+    """With our method's runs added (0.02 everywhere but 0.20 on one problem, where
+    Bayes-UCB (K=100) at 0.09 is the lowest other arm), the section names that one
+    problem and its lowest arm, and the figure of every problem is written."""
+    ours = DECL.OURS
+
+    def gap(o, method, variant, gamma):
+        return 0.20 if o == "hump-auc0.50" else 0.02
+
+    root = fixture_run.res.root
+    runs = pd.read_parquet(root / "regimes" / "runs.parquet")
+    extra = _runs([*OBJ, SIDE], [(ours, "", 0.2)], gap, "regimes", "generated")
+    pd.concat([runs, extra], ignore_index=True).to_parquet(root / "regimes" / "runs.parquet")
+    fixture_run = Run.start(root, root.parent / "out2", root.parent / "data")
+    mod = experiments.analysis("regimes")
+    mod._step(fixture_run)
+    vb = mod.versus_best(fixture_run.ctx["regimes"]["table"])
+    assert vb.loc["hump-auc0.50", "best"] == "bayes_ucb_100"
+    assert vb.loc["hump-auc0.50", "diff"] == pytest.approx(0.11, abs=0.01)
+    assert (vb.drop("hump-auc0.50")["diff"] < 0).all()
+    assert "regimes_ours.png" in {p.name for p in fixture_run.written}
+    text = "\n".join(mod._section(fixture_run.ctx))
+    label = methods.get(ours).card.label
+    assert (
+        f"- {label}: above the lowest other arm by more than 2 SE on 1 of 5 "
+        f"problems (`hump-auc0.50`; the lowest there: "
+        f"{methods.get('bayes_ucb_100').card.short_label})"
+    ) in text
+    assert "(figures/regimes_ours.png)" in text

@@ -433,6 +433,8 @@ def _step(run: Run) -> None:
         run.written.append(write_csv(s["real"], run.tables / "regimes_real.csv"))
     run.written.append(map_figure(s, run.figures / "regimes_map.png"))
     run.written.append(side_figure(s, run.figures / "regimes_side.png"))
+    if versus_best(s["table"]) is not None:
+        run.written.append(ours_figure(s, run.figures / "regimes_ours.png"))
 
 
 STEPS = (("regimes: when does LEGS win", _step),)
@@ -607,33 +609,130 @@ def _section(ctx: Mapping) -> list[str]:
     return L
 
 
-def _ours_lines(t: pd.DataFrame) -> list[str]:
-    """Our method on every problem against the lowest other arm (the oracle
-    excluded) and against the method it builds on, Bayes-UCB (K=100)."""
-    ours, base = decl.OURS, "bayes_ucb_100"
-    if f"gap_{ours}" not in t or f"gap_{base}" not in t:
-        return []
+def versus_best(t: pd.DataFrame) -> pd.DataFrame | None:
+    """Our method on every problem against the lowest other arm there (the oracle
+    excluded): ``best`` (that arm), ``diff`` (ours − it) and ``se`` (of two
+    independent means); None where our method did not run."""
+    ours = decl.OURS
+    if f"gap_{ours}" not in t:
+        return None
     others = [
         c[4:]
         for c in t.columns
         if c.startswith("gap_") and c[4:] != ours and c[4:] not in oracle_methods()
     ]
-    gap, se = t[f"gap_{ours}"], t[f"se_{ours}"]
+    if not others:
+        return None
     best = t[[f"gap_{a}" for a in others]].idxmin(axis=1).str[4:]
     bgap = pd.Series([t.loc[o, f"gap_{a}"] for o, a in best.items()], t.index)
     bse = pd.Series([t.loc[o, f"se_{a}"] for o, a in best.items()], t.index)
-    worse = t.index[(gap - bgap) > Z * np.hypot(se, bse)]
+    return pd.DataFrame(
+        {
+            "best": best,
+            "diff": t[f"gap_{ours}"] - bgap,
+            "se": np.hypot(t[f"se_{ours}"], bse),
+        }
+    )
+
+
+def _ours_label() -> str:
+    from legs_jax.core import methods  # jax: kept out of the figures' start-up
+
+    return methods.get(decl.OURS).card.label
+
+
+def _short(arm: str) -> str:
+    """A method's short label from its card; a grid point or variant as named."""
+    from legs_jax.core import methods  # jax: kept out of the figures' start-up
+
+    return methods.get(arm).card.short_label if arm in methods.names() else arm
+
+
+def ours_figure(s: Mapping[str, Any], path) -> Any:
+    """Our method against the lowest other arm: the map's cells (left) and every
+    problem with ± Z standard errors (right)."""
+    plt = pyplot()
+    t = s["table"]
+    vb = versus_best(t)
+    shapes, aucs, xs, ys = _levels(t)
+    fig, (ax, bx) = plt.subplots(
+        1, 2, figsize=(12.5, 6.2), gridspec_kw=dict(width_ratios=[1, 1.25])
+    )
+    grid = np.full((len(aucs), len(shapes)), np.nan)
+    text = np.full(grid.shape, "", dtype=object)
+    for name, r in t[t["on_map"]].iterrows():
+        hit = [i for i, a in enumerate(aucs) if np.isclose(a, r["auc_level"])]
+        if r["shape"] in shapes and hit:
+            i, j = hit[0], shapes.index(r["shape"])
+            d, se = float(vb.loc[name, "diff"]), float(vb.loc[name, "se"])
+            grid[i, j] = d
+            star = "*" if d > Z * se else ""
+            text[i, j] = f"{d:+.3f}{star}\n{_short(vb.loc[name, 'best'])}"
+    lim = max(float(np.nanmax(np.abs(vb["diff"]))), 0.005)
+    cmap = plt.get_cmap("RdBu_r")
+    im = ax.imshow(grid, origin="lower", cmap=cmap, vmin=-lim, vmax=lim, aspect="auto")
+    for i in range(len(aucs)):
+        for j in range(len(shapes)):
+            if text[i, j]:
+                ax.text(j, i, text[i, j], ha="center", va="center", fontsize=6.5)
+    ax.set_xticks(range(len(shapes)))
+    ax.set_xticklabels([f"{x}\n{v:.2f}" for x, v in zip(shapes, xs, strict=True)])
+    ax.set_yticks(range(len(aucs)))
+    ax.set_yticklabels([f"{v:.2f}" for v in ys])
+    ax.set_xlabel("p distribution (mean p / p*)")
+    ax.set_ylabel("prior C-index")
+    ax.set_title("ours − the lowest other arm (named in the cell)", fontsize=10)
+    fig.colorbar(im, ax=ax, shrink=0.8, label="final gap difference")
+    order = vb.sort_values("diff")
+    y = np.arange(len(order))
+    worse = order["diff"] > Z * order["se"]
+    bx.errorbar(
+        order["diff"],
+        y,
+        xerr=Z * order["se"],
+        fmt="none",
+        ecolor="0.4",
+        elinewidth=1,
+        capsize=2,
+    )
+    bx.scatter(order["diff"], y, c=np.where(worse, "#d62728", "#1f77b4"), s=18, zorder=3)
+    bx.axvline(0.0, color="black", lw=0.8)
+    bx.set_yticks(y)
+    bx.set_yticklabels(
+        [f"{n} ({_short(b)})" for n, b in zip(order.index, order["best"], strict=True)],
+        fontsize=6.5,
+    )
+    bx.set_xlabel(f"ours − the lowest other arm (± {Z:g} SE; red: above by more)")
+    bx.set_title("every generated problem", fontsize=10)
+    fig.suptitle(_ours_label() + " against the lowest other arm", fontsize=10)
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def _ours_lines(t: pd.DataFrame) -> list[str]:
+    """Our method on every problem against the lowest other arm (the oracle
+    excluded) and against the method it builds on, Bayes-UCB (K=100)."""
+    base = "bayes_ucb_100"
+    vb = versus_best(t)
+    if vb is None or f"gap_{base}" not in t:
+        return []
+    gap, se = t[f"gap_{decl.OURS}"], t[f"se_{decl.OURS}"]
+    worse = t.index[vb["diff"] > Z * vb["se"]]
     dbase = gap - t[f"gap_{base}"]
     dse = np.hypot(se, t[f"se_{base}"])
     lower, higher = t.index[dbase < -Z * dse], t.index[dbase > Z * dse]
-    why = sorted(set(best[worse]))
+    why = sorted({_short(b) for b in vb["best"][worse]})
     return [
-        f"- Ours, Pooled Bayes-UCB (K=100): above the lowest other arm by more "
+        f"- {_ours_label()}: above the lowest other arm by more "
         f"than {Z:g} SE on {len(worse)} of {len(t)} problems ({_names(list(worse))}"
         f"; the lowest there: {', '.join(why) or 'none'}); against Bayes-UCB "
         f"(K=100), which it builds on, {fmt(float(dbase.mean()))} on average, "
         f"lower by more than {Z:g} SE on {len(lower)} ({_names(list(lower))}) and "
-        f"higher on {len(higher)} ({_names(list(higher))})."
+        f"higher on {len(higher)} ({_names(list(higher))}).",
+        "",
+        f"![{_ours_label()} against the lowest other arm on every generated "
+        "problem](figures/regimes_ours.png)",
+        "",
     ]
 
 
