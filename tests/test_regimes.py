@@ -217,7 +217,9 @@ def test_our_method_against_the_lowest_other_arm(fixture_run):
     root = fixture_run.res.root
     runs = pd.read_parquet(root / "regimes" / "runs.parquet")
     extra = _runs([*OBJ, SIDE], [(ours, "", 0.2)], gap, "regimes", "generated")
-    pd.concat([runs, extra], ignore_index=True).to_parquet(root / "regimes" / "runs.parquet")
+    pd.concat([runs, extra], ignore_index=True).to_parquet(
+        root / "regimes" / "runs.parquet"
+    )
     fixture_run = Run.start(root, root.parent / "out2", root.parent / "data")
     mod = experiments.analysis("regimes")
     mod._step(fixture_run)

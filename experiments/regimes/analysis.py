@@ -695,7 +695,9 @@ def ours_figure(s: Mapping[str, Any], path) -> Any:
         elinewidth=1,
         capsize=2,
     )
-    bx.scatter(order["diff"], y, c=np.where(worse, "#d62728", "#1f77b4"), s=18, zorder=3)
+    bx.scatter(
+        order["diff"], y, c=np.where(worse, "#d62728", "#1f77b4"), s=18, zorder=3
+    )
     bx.axvline(0.0, color="black", lw=0.8)
     bx.set_yticks(y)
     bx.set_yticklabels(
