@@ -62,3 +62,24 @@ def test_our_method_is_set_against_the_lowest_other_row():
     # paired differences -0.02, -0.01, -0.03: mean -0.02, SE 0.01/√3
     assert "paired over the 3 objects -0.0200 ± 0.0058" in line
     assert "lower on 3 of 3 objects" in line
+
+
+def test_wins_among_all_rows_name_ours_and_the_next():
+    """The win counts among every row: ours and the row with the next most wins
+    (from a count table made by hand, two sets, one without our method)."""
+    from experiments.main import prose
+
+    w = pd.DataFrame(
+        [
+            ("s", "legs", 1, 4, 4),
+            ("s", "bayes_ucb_100", 2, 4, 4),
+            ("s", "pooled_ucb", 3, 4, 4),
+            ("t", "legs", 1, 2, 2),
+        ],
+        columns=["set", "method", "wins", "n_objects", "n_total"],
+    )
+    (line,) = prose._wins_all_lines(w, "s")
+    assert "Pooled Bayes-UCB (K_s=100, ours) wins 3 of 4 objects" in line
+    assert "the next most Bayes-UCB (K_s=100) 2." in line
+    assert prose._wins_all_lines(w, "t") == []
+    assert prose._wins_all_lines(None, "s") == []

@@ -96,6 +96,7 @@ def _table_one_sentences(main: Mapping) -> list[str]:
             out.append(line)
         out += _extra_row_lines(d, comp)
         out += _ours_lines(main["gaps"], s)
+        out += _wins_all_lines(main.get("wins_all"), s)
         out += _early_lines(main.get("curves"), s)
     return out
 
@@ -157,6 +158,27 @@ def _ours_lines(gaps: pd.DataFrame, set_: str) -> list[str]:
         f"({zp:.1f} standard errors of the paired difference; lower on "
         f"{int((paired < 0).sum())} of {n} objects)."
     ]
+
+
+def _wins_all_lines(wins_all: pd.DataFrame | None, set_: str) -> list[str]:
+    """Objects won among every row (the extra rows compared too): our method's
+    count and the next highest."""
+    if wins_all is None:
+        return []
+    w = wins_all[wins_all["set"] == set_].set_index("method")
+    if sweep.OURS not in w.index or not len(w):
+        return []
+    n = int(w["n_objects"].max())
+    others = w.drop(sweep.OURS).sort_values("wins", ascending=False, kind="stable")
+    text = (
+        f"  Among all rows (the extra rows compared too, the oracle not): "
+        f"{ARMS.label(sweep.OURS)} wins {int(w.loc[sweep.OURS, 'wins'])} of {n} "
+        "objects"
+    )
+    if len(others):
+        m = str(others.index[0])
+        text += f", the next most {ARMS.label(m)} {int(others['wins'].iloc[0])}"
+    return [text + "."]
 
 
 def _extra_row_lines(d: pd.DataFrame, comp: pd.DataFrame) -> list[str]:

@@ -133,8 +133,10 @@ def table_one_table(
     )
 
 
-def wins_table(wins: pd.DataFrame) -> Table:
-    """Win counts per method and set, beside the paper's counts."""
+def wins_table(wins: pd.DataFrame, wins_all: pd.DataFrame | None = None) -> Table:
+    """Win counts per method and set, beside the paper's counts; with
+    ``wins_all`` (counts among every row, the extra rows included) a column of
+    those per set and a row per extra method."""
     sets = an.order_sets(wins["set"])
     header = ["Method"]
     align = "l"
@@ -144,19 +146,29 @@ def wins_table(wins: pd.DataFrame) -> Table:
         if s in PAPER_WINS:
             header.append("paper")
             align += "c"
+        if wins_all is not None:
+            header.append("among all rows")
+            align += "c"
+
+    def count(w: pd.DataFrame, s: str, m: str) -> str:
+        d = w[(w["set"] == s) & (w["method"] == m)]
+        if not len(d):
+            return "—"
+        return f"{int(d['wins'].iloc[0])}/{int(d['n_objects'].iloc[0])}"
+
+    methods = ARMS.competitors
+    if wins_all is not None:
+        methods = tuple(m for m in ARMS.rivals if m in set(wins_all["method"]))
     rows = []
-    for m in ARMS.competitors:
+    for m in methods:
         row: list[Cell] = [ARMS.label(m)]
         for s in sets:
-            d = wins[(wins["set"] == s) & (wins["method"] == m)]
-            if len(d):
-                w, n = int(d["wins"].iloc[0]), int(d["n_objects"].iloc[0])
-                row.append(f"{w}/{n}")
-            else:
-                row.append("—")
+            row.append(count(wins, s, m))
             if s in PAPER_WINS:
                 p = PAPER_WINS[s].get(m)
                 row.append(f"{p[0]}/{p[1]}" if p else "—")
+            if wins_all is not None:
+                row.append(count(wins_all, s, m))
         rows.append(row)
     notes = [
         f"A method wins an object when its mean final gap is at most every other "
@@ -165,6 +177,12 @@ def wins_table(wins: pd.DataFrame) -> Table:
         "win the same object.",
         "The paper states counts for LEGS and BORGES (K_s=2000) only.",
     ]
+    if wins_all is not None:
+        notes.append(
+            "Among all rows: the same rule with the extra rows (Bayes-UCB, ours) "
+            "compared too; an object on which every row is within two combined "
+            "standard errors of the best has no winner."
+        )
     return Table(
         header,
         rows,
@@ -243,21 +261,27 @@ def main_tables(res: Results, out: Path) -> tuple[list[Path], dict[str, Any]]:
     t1 = an.table_one(gaps, ARMS)
     wins = an.win_counts(gaps, ARMS.competitors)
     win = an.winners(gaps, ARMS.competitors)
+    rivals = [m for m in ARMS.rivals if m in set(gaps["method"])]
+    extra = set(rivals) - set(ARMS.competitors)
+    wins_all = an.win_counts(gaps, rivals) if extra else None
     files = []
     horizon = int(runs["horizon"].max()) if "horizon" in runs.columns else None
     prior = an.prior_kind(res)
     files += write_pair("table1", table_one_table(t1, horizon, prior), out)
-    files += write_pair("wins", wins_table(wins), out)
+    files += write_pair("wins", wins_table(wins, wins_all), out)
     files += write_pair("per_object", per_object_table(gaps, win, prior), out)
     files.append(write_csv(t1, out / "table1.csv"))
     files.append(write_csv(gaps, out / "per_object.csv"))
     files.append(write_csv(wins, out / "wins.csv"))
+    if wins_all is not None:
+        files.append(write_csv(wins_all, out / "wins_all_rows.csv"))
     curves = res.table("main", "curves") if res.has("main", "curves") else None
     return files, dict(
         curves=curves,
         gaps=gaps,
         table1=t1,
         wins=wins,
+        wins_all=wins_all,
         winners=win,
         runs=runs,
         horizon=horizon,

@@ -89,6 +89,20 @@ class Arms:
             and not methods.get(m).card.oracle
         )
 
+    @property
+    def rivals(self) -> tuple[str, ...]:
+        """Every declared method but an oracle row, in table order: the
+        competitors and the extra rows (for win counts among all rows)."""
+        from legs_jax.core import methods  # jax: kept out of the figures' start-up
+
+        return tuple(
+            m
+            for m in self.methods
+            if m in self.declared
+            and m in methods.names()
+            and not methods.get(m).card.oracle
+        )
+
     def declaration(self, method: str, variant: str = "") -> dict:
         """``label``, ``short_label`` and ``style`` of an arm: a declared
         variant's, else its method's (:mod:`legs_jax.core.methods`); empty for an
