@@ -309,6 +309,17 @@ def _place(values: np.ndarray, levels: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return pos, out
 
 
+def _map_axes(ax, shapes: Sequence[str], xs: np.ndarray, ys: np.ndarray) -> None:
+    """The map's axes: the p-distribution shapes (with their measured mean p / p*)
+    across, the prior's C-index up."""
+    ax.set_xticks(range(len(shapes)))
+    ax.set_xticklabels([f"{x}\n{v:.2f}" for x, v in zip(shapes, xs, strict=True)])
+    ax.set_yticks(range(len(ys)))
+    ax.set_yticklabels([f"{v:.2f}" for v in ys])
+    ax.set_xlabel("p distribution (mean p / p*)")
+    ax.set_ylabel("prior C-index")
+
+
 def map_figure(s: Mapping[str, Any], path) -> Any:
     plt = pyplot()
     t = s["table"]
@@ -345,12 +356,7 @@ def map_figure(s: Mapping[str, Any], path) -> Any:
                         va="center",
                         fontsize=7.5,
                     )
-        ax.set_xticks(range(len(shapes)))
-        ax.set_xticklabels([f"{x}\n{v:.2f}" for x, v in zip(shapes, xs, strict=True)])
-        ax.set_yticks(range(len(aucs)))
-        ax.set_yticklabels([f"{v:.2f}" for v in ys])
-        ax.set_xlabel("p distribution (mean p / p*)")
-        ax.set_ylabel("prior C-index")
+        _map_axes(ax, shapes, xs, ys)
         ax.set_title(f"LEGS − {lbl}")
         if real is not None and len(xs) > 1 and len(ys) > 1:
             px, xout = _place(real["mean_over_best"].to_numpy(), xs)
@@ -675,12 +681,7 @@ def ours_figure(s: Mapping[str, Any], path) -> Any:
         for j in range(len(shapes)):
             if text[i, j]:
                 ax.text(j, i, text[i, j], ha="center", va="center", fontsize=6.5)
-    ax.set_xticks(range(len(shapes)))
-    ax.set_xticklabels([f"{x}\n{v:.2f}" for x, v in zip(shapes, xs, strict=True)])
-    ax.set_yticks(range(len(aucs)))
-    ax.set_yticklabels([f"{v:.2f}" for v in ys])
-    ax.set_xlabel("p distribution (mean p / p*)")
-    ax.set_ylabel("prior C-index")
+    _map_axes(ax, shapes, xs, ys)
     ax.set_title("ours − the lowest other arm (named in the cell)", fontsize=10)
     fig.colorbar(im, ax=ax, shrink=0.8, label="final gap difference")
     order = vb.sort_values("diff")
