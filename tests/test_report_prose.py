@@ -79,7 +79,7 @@ def test_wins_among_all_rows_name_ours_and_the_next():
         columns=["set", "method", "wins", "n_objects", "n_total"],
     )
     (line,) = prose._wins_all_lines(w, "s")
-    assert "Pooled Bayes-UCB (K_s=100, ours) wins 3 of 4 objects" in line
+    assert "Pooled Bayes-UCB (ours) wins 3 of 4 objects" in line
     assert "the next most Bayes-UCB (K_s=100) 2." in line
     assert prose._wins_all_lines(w, "t") == []
     assert prose._wins_all_lines(None, "s") == []

@@ -3,7 +3,7 @@
 All seven methods with their default hyperparameters, plus BORGES
 (K=2000) with the original BORGES code's prior (``prior_offset = 0, s = 5``) as
 the extra variant ``orig_prior``, Bayes-UCB (K=100 and K=2000) as extra
-rows, and our own method, Pooled Bayes-UCB (K=100). T x R = 10 x 10 runs of
+rows, and our own method, Pooled Bayes-UCB. T x R = 10 x 10 runs of
 H = 3000 steps per object. Dirichlet checks are recorded for LEGS only (they
 cost more than the cheap methods' own steps and only LEGS's are analysed).
 """

@@ -49,8 +49,9 @@ How M and the switch were chosen: on the Dex-Net Adversarial set (a design set),
 in a first prototype over the top 100 only, M = 3, 10 and 30 changed the mean
 final gap by −0.003, −0.004 and +0.002 (paired over the objects); 10 was kept
 before the EGAD! set was run. The switch was designed on the generated problems
-of the regimes map and the Dex-Net set (there it rarely fires: 0.0863 against
-0.0864 without it); the grid and the criterion are standard choices, not fitted.
+of the regimes map and the Dex-Net set (there it rarely fires: in a prototype
+0.0863 against 0.0864 without it); the grid and the criterion are standard
+choices, not fitted. EGAD! was run once with it, after.
 :class:`Reference` is its NumPy twin.
 """
 
