@@ -86,7 +86,13 @@ def test_quick_json_has_every_figure(quick_result):
 
 def test_projection_adds_up_the_sweep():
     """Minutes = sum over experiments and arms of rollout-steps / rate."""
-    rates = {"borges_2000": 1e4, "legs": 1e5, "tql": 2e5, "bayes_ucb_2000": 5e3}
+    rates = {
+        "borges_2000": 1e4,
+        "legs": 1e5,
+        "tql": 2e5,
+        "bayes_ucb_2000": 5e3,
+        "pooled_ucb": 4e3,
+    }
     assert set(rates) == set(bench.table_methods())
     p = bench.projection(rates)
     expected_s = 0.0
