@@ -74,22 +74,6 @@ class Arms:
         )
 
     @property
-    def competitors(self) -> tuple[str, ...]:
-        """Methods compared for a "win": those of ``order`` the
-        experiment declares, but not an oracle row (the K=100 upper bound);
-        extra rows (Bayes-UCB, a user's method) are shown but do not compete, so
-        the counts keep the paper's definition."""
-        from legs_jax.core import methods  # jax: kept out of the figures' start-up
-
-        return tuple(
-            m
-            for m in self.order
-            if m in self.declared
-            and m in methods.names()
-            and not methods.get(m).card.oracle
-        )
-
-    @property
     def rivals(self) -> tuple[str, ...]:
         """Every declared method but an oracle row, in table order: the
         competitors and the extra rows (for win counts among all rows)."""
@@ -102,6 +86,14 @@ class Arms:
             and m in methods.names()
             and not methods.get(m).card.oracle
         )
+
+    @property
+    def competitors(self) -> tuple[str, ...]:
+        """Methods compared for a "win": the :attr:`rivals` of ``order`` (not an
+        oracle row such as the K=100 upper bound); extra rows (Bayes-UCB, a
+        user's method) are shown but do not compete, so the counts keep the
+        paper's definition."""
+        return tuple(m for m in self.rivals if m in self.order)
 
     def declaration(self, method: str, variant: str = "") -> dict:
         """``label``, ``short_label`` and ``style`` of an arm: a declared

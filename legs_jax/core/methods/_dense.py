@@ -80,12 +80,17 @@ def update(st, ctx: Ctx, cfg: Config, s, grasp, slot, reward, live):
     return st, live & ~was
 
 
+def best_mean(a, b, mask):
+    """[B] the grasp of highest posterior mean α / (α + β) over ``mask`` [B, K]
+    (ties: lowest id), -1 where the mask is empty."""
+    best = argmax_first(jnp.where(mask, a / (a + b), -jnp.inf))
+    return jnp.where(jnp.any(mask, axis=-1), best, -1)
+
+
 def recommend(st: DenseState, ctx: Ctx, cfg: Config, s):
     a = gather_at(st.alpha, s)
     b = gather_at(st.beta, s)
-    mask = _mask_row(st, ctx, s)
-    best = argmax_first(jnp.where(mask, a / (a + b), -jnp.inf))
-    return jnp.where(jnp.any(mask, axis=-1), best, -1)
+    return best_mean(a, b, _mask_row(st, ctx, s))
 
 
 def recommend_updated(rows, ctx: Ctx, cfg: Config, s, slot, reward, live):
@@ -93,8 +98,7 @@ def recommend_updated(rows, ctx: Ctx, cfg: Config, s, slot, reward, live):
     win = (live & reward).astype(jnp.float32)
     a = updated_row(a, slot, win)
     b = updated_row(b, slot, live.astype(jnp.float32) - win)
-    best = argmax_first(jnp.where(mask, a / (a + b), -jnp.inf))
-    return jnp.where(jnp.any(mask, axis=-1), best, -1)
+    return best_mean(a, b, mask)
 
 
 def recommend_init(st: DenseState, ctx: Ctx, cfg: Config):

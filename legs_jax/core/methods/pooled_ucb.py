@@ -70,7 +70,6 @@ from legs_jax.core.methods.base import (
     TOP_FIXED,
     Card,
     Method,
-    argmax_first,
     best_estimates,
     beta_counts,
     gather_at,
@@ -218,8 +217,7 @@ def update(st: PooledState, ctx, cfg, s, grasp, slot, reward, live):
 
 def recommend(st: PooledState, ctx, cfg, s):
     a, b, _, _, mask = _row(st, ctx, s)
-    best = argmax_first(jnp.where(mask, a / (a + b), -jnp.inf))
-    return jnp.where(jnp.any(mask, axis=-1), best, -1)
+    return _dense.best_mean(a, b, mask)
 
 
 def _all(st: PooledState, ctx):
