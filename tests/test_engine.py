@@ -594,3 +594,27 @@ def test_the_paper_bound_alone_leaves_every_other_field_as_it_was():
             assert y is None
             continue
         np.testing.assert_array_equal(x, y, err_msg=name)
+
+
+def test_the_bootstrap_of_our_bound_changes_only_our_bound():
+    """``eb_replicates=R`` averages our bound's posterior over R bootstrap fits of
+    G_s: only ``check_p_lower_eb`` moves (every other field, the paper's bound
+    included, keeps its bits), and on average it moves down, not up."""
+    prob = make_problem(seed=5, num_poses=3, num_grasps=120, num_trials=1, name="ob")
+    kw = dict(
+        object_ids=[7], num_rollouts=4, horizon=300, check_every=50,
+        hparams={"k": 20}, progress=False,
+    )  # fmt: skip
+    plug = runtime.run(stack([prob]), "legs", **kw)
+    boot = runtime.run(stack([prob]), "legs", eb_replicates=4, **kw)
+    a, b = plug.check_p_lower_eb, boot.check_p_lower_eb
+    assert np.all(np.isfinite(b)) and np.any(a != b)
+    assert np.mean(b) <= np.mean(a)
+    for name in plug._fields:
+        if name == "check_p_lower_eb":
+            continue
+        x, y = getattr(plug, name), getattr(boot, name)
+        if x is None:
+            assert y is None
+            continue
+        np.testing.assert_array_equal(x, y, err_msg=name)

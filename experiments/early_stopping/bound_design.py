@@ -13,7 +13,12 @@ draws each check records our bound with the prior G_s fitted
 - ``leave-out``: without the recommended grasp's own outcomes, from the uniform
   histogram (the second);
 - ``pooled``: without them, from the pose's pooled success rate (the shipped
-  design: :func:`legs_jax.core.stopping.eb_posterior`).
+  design: :func:`legs_jax.core.stopping.eb_posterior`);
+- ``boot-R``: as ``pooled``, averaged over R Bayesian-bootstrap fits of G_s
+  (:func:`legs_jax.core.stopping.bootstrap_posterior`; ``--variants`` picks R).
+
+The oracle stops each run at its first check whose true performance is at least
+ρ_min; the study prints each variant's mean stopping step over the oracle's.
 
 A check is valid when the bound is at most the true performance
 Σ_s λ_s p[s, π_t(s)]; ground truth enters only this scoring. Both sets have been
@@ -26,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -36,12 +42,25 @@ from legs_jax.core import problem
 from legs_jax.report import analysis as an
 
 ROOT = Path(__file__).resolve().parents[2]
-# name -> (G_s fitted without the recommended grasp, where the fit starts)
+# name -> (G_s fitted without the recommended grasp, where the fit starts,
+# Bayesian-bootstrap replicates of the fit: 0 for the plug-in fit)
 VARIANTS = {
-    "with-rec": (False, "uniform"),
-    "leave-out": (True, "uniform"),
-    "pooled": (True, "pooled"),
+    "with-rec": (False, "uniform", 0),
+    "leave-out": (True, "uniform", 0),
+    "pooled": (True, "pooled", 0),
 }
+
+
+def variant(name: str) -> tuple[bool, str, int]:
+    """A variant's settings: one of ``VARIANTS`` or ``boot-R`` (R >= 1)."""
+    if name in VARIANTS:
+        return VARIANTS[name]
+    head, _, r = name.partition("-")
+    if head == "boot" and r.isdigit() and int(r) >= 1:
+        return (True, "pooled", int(r))
+    raise ValueError(
+        f"unknown variant '{name}' (one of {', '.join(VARIANTS)} or boot-R, R >= 1)"
+    )
 
 
 def checks_frame(
@@ -68,7 +87,14 @@ def checks_frame(
     )
 
 
-def study(set_name: str, trials: int, rollouts: int, horizon: int, progress: bool):
+def study(
+    set_name: str,
+    trials: int,
+    rollouts: int,
+    horizon: int,
+    progress: bool,
+    variants: Sequence[str] = tuple(VARIANTS),
+):
     """Per object and variant: the checks (:func:`checks_frame`)."""
     from tqdm.auto import tqdm
 
@@ -81,11 +107,12 @@ def study(set_name: str, trials: int, rollouts: int, horizon: int, progress: boo
     for i, path in enumerate(tqdm(files, desc=set_name, disable=not progress)):
         pb = problem.load(path)
         batch = problem.stack([pb], num_trials=min(trials, pb.num_trials))
-        for name, (leave_out, start) in VARIANTS.items():
+        for name in variants:
+            leave_out, start, replicates = variant(name)
             r = runtime.run(
                 batch, "legs", object_ids=[i], num_rollouts=rollouts,
                 horizon=horizon, check_every=100, eb_leave_out_rec=leave_out,
-                eb_fit_start=start, progress=False,
+                eb_fit_start=start, eb_replicates=replicates, progress=False,
             )  # fmt: skip
             out[(pb.name, name)] = checks_frame(
                 pb.name, r.check_p_lower_eb, r.check_true_performance, r.check_steps
@@ -103,22 +130,44 @@ def main(argv=None) -> int:
     ap.add_argument("--trials", type=int, default=10, help="trials T (10)")
     ap.add_argument("--rollouts", type=int, default=2, help="rollouts R (2)")
     ap.add_argument("--horizon", type=int, default=3000, help="steps H (3000)")
+    ap.add_argument(
+        "--variants",
+        default=",".join(VARIANTS),
+        help="comma-separated variants: " + ", ".join(VARIANTS) + " or boot-R "
+        f"(default {','.join(VARIANTS)})",
+    )
     ap.add_argument("--json", action="store_true", help="one JSON object")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     a = ap.parse_args(argv)
     for n in ("trials", "rollouts", "horizon"):
         if getattr(a, n) < 1:
             ap.error(f"--{n} must be at least 1")
-    got = study(a.set, a.trials, a.rollouts, a.horizon, not a.quiet)
+    names = [v.strip() for v in a.variants.split(",") if v.strip()]
+    try:
+        for name in names:
+            variant(name)
+    except ValueError as e:
+        ap.error(str(e))
+    got = study(a.set, a.trials, a.rollouts, a.horizon, not a.quiet, names)
     objects = sorted({o for o, _ in got})
+    truth = pd.concat([got[(o, names[0])] for o in objects], ignore_index=True)
+    oracle = an.stopping_sensitivity(
+        truth.assign(p_lower_eb=truth["true_performance"]), RHO_MIN, a.horizon
+    )
+    oracle_step = dict(zip(RHO_MIN, oracle["mean_stop_step"], strict=True))
     rows = {}
-    for name in VARIANTS:
+    for name in names:
         checks = pd.concat([got[(o, name)] for o in objects], ignore_index=True)
         pooled = an.bound_summary(checks).iloc[0]
         per_object = an.bound_summary(checks, by_object=True)
         sens = an.stopping_sensitivity(checks, RHO_MIN, a.horizon)
         stops = {
-            rho: (int(x.n_stopped), float(x.accuracy), float(x.mean_stop_step))
+            rho: (
+                int(x.n_stopped),
+                float(x.accuracy),
+                float(x.mean_stop_step),
+                float(x.mean_stop_step) / oracle_step[rho],
+            )
             for rho, x in zip(RHO_MIN, sens.itertuples(), strict=True)
         }
         rows[name] = {
@@ -142,16 +191,16 @@ def main(argv=None) -> int:
         print(f"{name:<10} {r['checks']:>7} {r['valid']:>7.1%} {r['below']:>14.4f}")
     print(
         "stopping at the first check with bound >= rho_min: runs stopped, share "
-        "of them truly >= rho_min, mean stopping step"
+        "of them truly >= rho_min, mean stopping step (over the oracle's)"
     )
     for rho in RHO_MIN:
         print(f"  rho_min {rho:.2f}: " + "; ".join(
-            f"{name} {n} {share:.1%} {step:.0f}"
-            for name in VARIANTS
-            for n, share, step in [rows[name]["stops"][str(rho)]]
+            f"{name} {n} {share:.1%} {step:.0f} ({ratio:.2f}x)"
+            for name in names
+            for n, share, step, ratio in [rows[name]["stops"][str(rho)]]
         ))  # fmt: skip
-    print("valid per object (" + " -> ".join(VARIANTS) + "): " + ", ".join(
-        f"{o} " + " -> ".join(f"{rows[n]['per_object'][o]:.0%}" for n in VARIANTS)
+    print("valid per object (" + " -> ".join(names) + "): " + ", ".join(
+        f"{o} " + " -> ".join(f"{rows[n]['per_object'][o]:.0%}" for n in names)
         for o in objects
     ))  # fmt: skip
     return 0

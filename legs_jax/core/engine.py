@@ -448,6 +448,7 @@ def simulate(
     dirichlet: bool = True,
     eb_leave_out_rec: bool = True,
     eb_fit_start: str = "pooled",
+    eb_replicates: int = 0,
     our_bound: bool = True,
 ) -> dict[str, jax.Array]:
     """Run B rollouts of ``method`` for ``horizon`` steps (pure; jit- and vmap-able).
@@ -475,6 +476,10 @@ def simulate(
       eb_fit_start: where our bound's fit of G_s starts (``start`` of
         :func:`legs_jax.core.stopping.eb_posterior`: ``"pooled"``, the default,
         or ``"uniform"``, the earlier bound).
+      eb_replicates: 0 (the default): G_s is the plug-in fit; R > 0: the
+        posterior is averaged over R Bayesian-bootstrap fits of G_s
+        (:func:`legs_jax.core.stopping.bootstrap_posterior`; check c's weights
+        come from ``fold_in(check_key, c)``).
       our_bound: compute our bound at the checks (the default; False: only the
         paper's bound, without our bound's fit, e.g. to time it).
     Returns:
@@ -559,14 +564,20 @@ def simulate(
         c, traj = run_steps(c, blk * L, L)
         return c, (_gap(tables, ot, c.rec), traj)
 
-    def _eb_post(c: _Loop):
-        """Our bound's posteriors of the recommended grasps [B, P, GRID] (NaN
-        for a method without per-grasp counts)."""
+    def _eb_post(c: _Loop, idx):
+        """Our bound's posteriors of the recommended grasps [B, P, GRID] at check
+        ``idx`` (NaN for a method without per-grasp counts)."""
         if m.counts is None:
             return jnp.full((B, P, stopping.GRID), jnp.nan, jnp.float32)
         succ, fail, fit, ids = m.counts(c.mstate, ctx, cfg)
         rec = (ids == c.rec[..., None]) & (c.rec[..., None] >= 0)
         lost = c.forgotten if track else None
+        if eb_replicates:
+            k = keys_mod.step_keys(keys_mod.check_key(rollout_keys), idx)
+            return stopping.bootstrap_posterior(
+                k, succ, fail, fit, rec, lost, eb_replicates, eb_leave_out_rec,
+                eb_fit_start,
+            )  # fmt: skip
         return stopping.eb_posterior(
             succ, fail, fit, rec, lost, eb_leave_out_rec, eb_fit_start
         )
@@ -582,7 +593,7 @@ def simulate(
         if attempted_variant:
             out["check_values_attempted"] = v_att.astype(jnp.float32)
         if our_bound:
-            out["check_eb_post"] = _eb_post(c)
+            out["check_eb_post"] = _eb_post(c, idx)
         if record_active_set:
             if m.active_set is None:
                 act = jnp.full((B, P, m.active_width(cfg)), -1, jnp.int32)

@@ -78,6 +78,8 @@ __all__ = [
     "GRID",
     "START_FLOOR",
     "UNIFORM_STREAM",
+    "BOOT_STREAM",
+    "bootstrap_posterior",
     "draw_values",
     "eb_posterior",
     "forgotten_cells",
@@ -91,6 +93,7 @@ EM_ITERATIONS = 25
 FIT_STARTS = ("pooled", "uniform")
 START_FLOOR = 1e-3
 UNIFORM_STREAM = 1 << 30  # fold_in data of the p' uniforms (apart from pose ids)
+BOOT_STREAM = 1 << 29  # fold_in data of the bootstrap weights of G_s's fit
 # Forgotten grasps (pruned from an active set) are kept as a count per (S, F)
 # cell, S and F clipped to CAP - 1.
 CAP = 8
@@ -136,6 +139,8 @@ def eb_posterior(
     forgotten: jax.Array | None = None,
     leave_out_rec: bool = True,
     start: str = "pooled",
+    weights: jax.Array | None = None,
+    cell_weights: jax.Array | None = None,
 ) -> jax.Array:
     """Posterior bin weights of the recommended grasp of every pose.
 
@@ -154,6 +159,9 @@ def eb_posterior(
       start: where the fit starts (``FIT_STARTS``): ``"pooled"`` (the default),
         G_s at the pose's pooled success rate, as narrow as the histogram allows;
         ``"uniform"``, the earlier start (module docstring).
+      weights, cell_weights: optional [B, P, N] and [B, P, CELLS] weights of the
+        fitted grasps and of the forgotten cells in the fit of G_s (default 1 a
+        grasp, the count a cell; :func:`bootstrap_posterior` draws them).
     Returns:
       [B, P, GRID] f32 posterior weights (sum 1; G_s uniform where pose s has no
       attempted grasp).
@@ -161,6 +169,8 @@ def eb_posterior(
     ll = _log_lik(succ.astype(jnp.float32), fail.astype(jnp.float32))
     own = jnp.sum(jnp.where(rec[..., None], ll, 0.0), axis=2)  # [B, P, J]
     m = (fit & ~rec if leave_out_rec else fit).astype(jnp.float32)
+    if weights is not None:
+        m = m * weights
     lik = jnp.exp(ll - jnp.max(ll, axis=-1, keepdims=True))  # [B, P, N, J]
     n = jnp.sum(m, axis=-1)
     if forgotten is not None:
@@ -170,6 +180,8 @@ def eb_posterior(
         cell_ll = _log_lik(cs.astype(jnp.float32), cf.astype(jnp.float32))
         cell_lik = jnp.exp(cell_ll - jnp.max(cell_ll, axis=-1, keepdims=True))
         mc = forgotten.astype(jnp.float32)
+        if cell_weights is not None:
+            mc = jnp.where(mc > 0, cell_weights, 0.0)
         n = n + jnp.sum(mc, axis=-1)
     any_fit = n > 0
     n_fit = jnp.maximum(n, 1.0)[..., None]
@@ -208,6 +220,51 @@ def eb_posterior(
     w = jnp.where(any_fit[..., None], w, flat)
     post = w * jnp.exp(own - jnp.max(own, axis=-1, keepdims=True))
     return post / jnp.sum(post, axis=-1, keepdims=True)
+
+
+def bootstrap_posterior(
+    keys: jax.Array,
+    succ: jax.Array,
+    fail: jax.Array,
+    fit: jax.Array,
+    rec: jax.Array,
+    forgotten: jax.Array | None = None,
+    replicates: int = 16,
+    leave_out_rec: bool = True,
+    start: str = "pooled",
+) -> jax.Array:
+    """The posterior of :func:`eb_posterior` averaged over a Bayesian bootstrap
+    of the fit of G_s: [B, P, GRID].
+
+    Replicate r of row b reweights every fitted grasp of every pose by an
+    independent Exp(1) weight (a forgotten cell of c grasps by a Gamma(c, 1)
+    weight, the sum of its grasps' weights), fits G_s to the weighted grasps and
+    takes the recommended grasp's posterior under it; the result is the mean of
+    the ``replicates`` posteriors, so a draw from it is a draw of G_s from the
+    bootstrap, then of p_rec given G_s. ``keys``: [B] typed keys (row b's weights
+    come from ``fold_in(keys[b], BOOT_STREAM)``).
+    """
+    B, P, N = succ.shape
+    lost = jnp.zeros((B, P, CELLS), jnp.float32) if forgotten is None else forgotten
+
+    def row(k, c):
+        kw, kc = jax.random.split(jax.random.fold_in(k, BOOT_STREAM))
+        w = jax.random.exponential(kw, (replicates, P, N), jnp.float32)
+        c = jnp.broadcast_to(c.astype(jnp.float32), (replicates, P, CELLS))
+        g = jax.random.gamma(kc, jnp.maximum(c, 1.0), dtype=jnp.float32)
+        return w, jnp.where(c > 0, g, 0.0)
+
+    w, cw = jax.vmap(row)(keys, lost)  # [B, R, P, N], [B, R, P, CELLS]
+
+    def one(w, cw):
+        return eb_posterior(
+            succ, fail, fit, rec, forgotten, leave_out_rec, start,
+            weights=w, cell_weights=None if forgotten is None else cw,
+        )  # fmt: skip
+
+    post = jax.vmap(one, in_axes=(1, 1))(w, cw)  # [R, B, P, GRID]
+    post = jnp.mean(post, axis=0)
+    return post
 
 
 def draw_values(keys: jax.Array, post: jax.Array, num_samples: int) -> jax.Array:

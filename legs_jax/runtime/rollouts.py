@@ -261,6 +261,7 @@ def run(
     record_active_set: bool = False,
     eb_leave_out_rec: bool = True,
     eb_fit_start: str = "pooled",
+    eb_replicates: int = 0,
     our_bound: bool = True,
     devices: Sequence[jax.Device] | None = None,
     batch_size: int | None = None,
@@ -292,6 +293,8 @@ def run(
         own outcomes (:func:`simulate`; the default).
       eb_fit_start: where our bound's fit of G_s starts: ``"pooled"`` (the
         default) or ``"uniform"`` (the earlier bound, kept to compare).
+      eb_replicates: 0: our bound's G_s is the plug-in fit; R > 0: averaged over
+        R Bayesian-bootstrap fits (:func:`simulate`).
       our_bound: compute our bound at the checks (the default); False: the
         paper's bound only (``check_p_lower_eb`` is NaN), which saves its fit.
       devices: devices to shard the rollouts over (default: all local devices).
@@ -442,7 +445,8 @@ def run(
             attempted_variant=bool(stop_variant_attempted),
             record_active_set=bool(record_active_set),
             eb_leave_out_rec=bool(eb_leave_out_rec),
-            eb_fit_start=str(eb_fit_start), our_bound=bool(our_bound),
+            eb_fit_start=str(eb_fit_start), eb_replicates=int(eb_replicates),
+            our_bound=bool(our_bound),
         )  # fmt: skip
         checks_fn = compiled_checks(devices, True) if check_every else None
         pending = []
