@@ -77,7 +77,7 @@ def test_quick_json_has_every_figure(quick_result):
     assert "jax.random.beta" in table and "borges_2000" in table
     assert "beta_sampler.beta_rows_v2" in table and "Thompson draw step" in table
     # The stopping checks: each bound alone, LEGS with and without them.
-    for key in ("paper", "ours", "ours_fit"):
+    for key in ("paper", "ours", "ours_fit", "ours_boot"):
         assert _positive(r["check_cost_us_per_cpu"][key]), key
     for key in ("none", "paper", "both"):
         assert _positive(r["legs_checks_steps_per_cpu_s"][key]), key
@@ -221,8 +221,14 @@ def test_table_shows_the_check_costs_it_is_given():
             "slots": 100,
             "M": 3000,
             "M_ours": 1000,
+            "boot_replicates": 8,
         },
-        check_cost_us_per_cpu={"paper": 300.0, "ours": 450.0, "ours_fit": 47.0},
+        check_cost_us_per_cpu={
+            "paper": 300.0,
+            "ours": 450.0,
+            "ours_fit": 47.0,
+            "ours_boot": 900.0,
+        },
         check_cost_ours_over_paper=1.5,
         legs_checks_steps_per_cpu_s={"none": 2.0e5, "paper": 1.2e5, "both": 1.0e5},
         legs_checks_rollouts=64,
@@ -233,6 +239,9 @@ def test_table_shows_the_check_costs_it_is_given():
     assert "P=8, 100 slots a pose, M=3000, ours M'=1000" in text
     assert "the paper's bound alone      300 us" in text
     assert "ours alone                   450 us (1.50x the paper's; its fit 47 us)" in (
+        text
+    )
+    assert "ours, fit bootstrapped (8 replicates)      900 us (3.00x the paper's)" in (
         text
     )
     assert "200.0 k steps/cpu-s without checks, 120.0 k with the paper's" in text
@@ -249,7 +258,8 @@ def test_check_cost_bench_times_both_bounds_on_the_same_shapes():
     r = bench.bench_check_cost(cfg, 3, quiet=True)
     assert r["check_cost_setup"]["poses"] == 3
     us = r["check_cost_us_per_cpu"]
-    assert all(_positive(us[k]) for k in ("paper", "ours", "ours_fit"))
+    assert all(_positive(us[k]) for k in ("paper", "ours", "ours_fit", "ours_boot"))
+    assert r["check_cost_setup"]["boot_replicates"] >= 1
     assert r["check_cost_ours_over_paper"] == pytest.approx(us["ours"] / us["paper"])
 
 

@@ -11,7 +11,9 @@ One check of one rollout, per bound alone:
 - ours: the empirical-Bayes fit of every pose's G_s and the recommended grasps'
   posteriors (:func:`legs_jax.core.stopping.eb_posterior`), M' draws p'_s from
   them (:func:`legs_jax.core.stopping.draw_values`), the first M' of the same
-  Dirichlet draws and the quantile of Σ_s λ'_s p'_s.
+  Dirichlet draws and the quantile of Σ_s λ'_s p'_s;
+- ours with its fit bootstrapped (``BOOT_REPLICATES`` Bayesian-bootstrap fits of
+  G_s, :func:`legs_jax.core.stopping.bootstrap_posterior`), the rest as ours.
 
 Their inputs are a LEGS rollout's at a check (its slot counts, a recommended
 grasp a pose): the cost depends on the shapes (rollouts, poses, slots, M), not
@@ -39,6 +41,8 @@ from legs_jax.bench.common import (
 # Rollouts of one timed call of the function-level comparison: one block of the
 # engine's checks (``engine._CHECK_ROWS``).
 CHECK_ROWS = 32
+# Bootstrap replicates of our bound's fit in the timed variant.
+BOOT_REPLICATES = 8
 
 
 def _check_inputs(rows: int, poses: int, slots: int, seed: int = 0):
@@ -94,6 +98,17 @@ def bench_check_cost(cfg: Settings, poses: int, quiet: bool) -> dict[str, Any]:
         )
 
     @jax.jit
+    def boot(keys, succ, fail, fit, rec, counts, observed):
+        post = stopping.bootstrap_posterior(
+            keys, succ, fail, fit, rec, None, BOOT_REPLICATES
+        )
+        draws = stopping.draw_values(keys, post, M2)
+        none = jnp.zeros((CHECK_ROWS, 0, poses), jnp.float32)
+        return engine.dirichlet_quantiles(
+            keys, counts, observed, none, DELTA_STOP, M2, draws=draws
+        )
+
+    @jax.jit
     def fit_only(succ, fail, fit, rec):
         return stopping.eb_posterior(succ, fail, fit, rec)
 
@@ -104,13 +119,19 @@ def bench_check_cost(cfg: Settings, poses: int, quiet: bool) -> dict[str, Any]:
         "paper": block(lambda: paper(keys, counts, observed, values)),
         "ours": block(lambda: ours(keys, succ, fail, fit, rec, counts, observed)),
         "ours_fit": block(lambda: fit_only(succ, fail, fit, rec)),
+        "ours_boot": block(lambda: boot(keys, succ, fail, fit, rec, counts, observed)),
     }
     _say(f"checks: the two bounds, {poses} poses, M = {M}", quiet)
     rates = _interleaved_rates(fns, CHECK_ROWS, cfg.repeats, cfg.min_seconds)
     us = {k: 1e6 / r["per_cpu_s"] for k, r in rates.items()}
     return {
         "check_cost_setup": dict(
-            rows=CHECK_ROWS, poses=poses, slots=slots, M=M, M_ours=M2
+            rows=CHECK_ROWS,
+            poses=poses,
+            slots=slots,
+            M=M,
+            M_ours=M2,
+            boot_replicates=BOOT_REPLICATES,
         ),
         "check_cost_us_per_cpu": us,
         "check_cost_ours_over_paper": us["ours"] / us["paper"],

@@ -147,6 +147,15 @@ def _check_lines(r: dict[str, Any]) -> list[str]:
         f"  ours alone              {us['ours']:8.0f} us "
         f"({r['check_cost_ours_over_paper']:.2f}x the paper's; its fit "
         f"{us['ours_fit']:.0f} us)",
+        *(
+            [
+                f"  ours, fit bootstrapped ({st['boot_replicates']} replicates) "
+                f"{us['ours_boot']:8.0f} us ({us['ours_boot'] / us['paper']:.2f}x "
+                "the paper's)"
+            ]
+            if "ours_boot" in us
+            else []
+        ),
         f"  LEGS ({r['legs_checks_rollouts']} rollouts): "
         f"{_fmt_rate(steps['none'])} steps/cpu-s without checks, "
         f"{_fmt_rate(steps['paper'])} with the paper's bound, "
