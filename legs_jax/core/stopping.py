@@ -71,6 +71,8 @@ import math
 import jax
 import jax.numpy as jnp
 
+from legs_jax.core import sampling
+
 __all__ = [
     "CAP",
     "EM_ITERATIONS",
@@ -242,29 +244,30 @@ def bootstrap_posterior(
     takes the recommended grasp's posterior under it; the result is the mean of
     the ``replicates`` posteriors, so a draw from it is a draw of G_s from the
     bootstrap, then of p_rec given G_s. ``keys``: [B] typed keys (row b's weights
-    come from ``fold_in(keys[b], BOOT_STREAM)``).
+    come from ``fold_in(keys[b], BOOT_STREAM)``: Exp(1) draws for the grasps,
+    exact Gamma draws of :func:`legs_jax.core.sampling.gamma_rows` for the
+    cells).
     """
     B, P, N = succ.shape
-    lost = jnp.zeros((B, P, CELLS), jnp.float32) if forgotten is None else forgotten
-
-    def row(k, c):
-        kw, kc = jax.random.split(jax.random.fold_in(k, BOOT_STREAM))
-        w = jax.random.exponential(kw, (replicates, P, N), jnp.float32)
-        c = jnp.broadcast_to(c.astype(jnp.float32), (replicates, P, CELLS))
-        g = jax.random.gamma(kc, jnp.maximum(c, 1.0), dtype=jnp.float32)
-        return w, jnp.where(c > 0, g, 0.0)
-
-    w, cw = jax.vmap(row)(keys, lost)  # [B, R, P, N], [B, R, P, CELLS]
+    R = int(replicates)
+    if R < 1:
+        raise ValueError(f"replicates must be at least 1, got {replicates}")
+    k = jax.vmap(lambda k: jax.random.split(jax.random.fold_in(k, BOOT_STREAM)))(keys)
+    w = jax.vmap(lambda k: jax.random.exponential(k, (R, P, N), jnp.float32))(k[:, 0])
+    cw = None
+    if forgotten is not None:
+        c = jnp.broadcast_to(forgotten.astype(jnp.float32)[:, None], (B, R, P, CELLS))
+        g = sampling.gamma_rows(k[:, 1], jnp.maximum(c, 1.0).reshape(B, -1))
+        cw = jnp.where(c > 0, g.reshape(c.shape), 0.0)  # [B, R, P, CELLS]
 
     def one(w, cw):
         return eb_posterior(
             succ, fail, fit, rec, forgotten, leave_out_rec, start,
-            weights=w, cell_weights=None if forgotten is None else cw,
+            weights=w, cell_weights=cw,
         )  # fmt: skip
 
-    post = jax.vmap(one, in_axes=(1, 1))(w, cw)  # [R, B, P, GRID]
-    post = jnp.mean(post, axis=0)
-    return post
+    post = jax.vmap(one, in_axes=(1, None if cw is None else 1))(w, cw)  # [R, B, P, J]
+    return jnp.mean(post, axis=0)
 
 
 def draw_values(keys: jax.Array, post: jax.Array, num_samples: int) -> jax.Array:
