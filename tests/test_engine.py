@@ -574,6 +574,18 @@ def test_dirichlet_checks_in_row_blocks_equal_small_batches():
             )
 
 
+def _same_but_our_bound(a, b):
+    """Every field of two runs' results but our bound's is the same bit for bit."""
+    for name in a._fields:
+        if name == "check_p_lower_eb":
+            continue
+        x, y = getattr(a, name), getattr(b, name)
+        if x is None:
+            assert y is None
+            continue
+        np.testing.assert_array_equal(x, y, err_msg=name)
+
+
 def test_the_paper_bound_alone_leaves_every_other_field_as_it_was():
     """``our_bound=False`` skips our bound's fit: its field is NaN and every other
     field, the paper's bound included, is the same bit for bit as with it."""
@@ -586,14 +598,7 @@ def test_the_paper_bound_alone_leaves_every_other_field_as_it_was():
     paper = runtime.run(stack([prob]), "legs", our_bound=False, **kw)
     assert np.all(np.isfinite(both.check_p_lower_eb))
     assert np.all(np.isnan(paper.check_p_lower_eb))
-    for name in both._fields:
-        if name == "check_p_lower_eb":
-            continue
-        x, y = getattr(both, name), getattr(paper, name)
-        if x is None:
-            assert y is None
-            continue
-        np.testing.assert_array_equal(x, y, err_msg=name)
+    _same_but_our_bound(both, paper)
 
 
 def test_the_bootstrap_of_our_bound_changes_only_our_bound():
@@ -610,11 +615,4 @@ def test_the_bootstrap_of_our_bound_changes_only_our_bound():
     a, b = plug.check_p_lower_eb, boot.check_p_lower_eb
     assert np.all(np.isfinite(b)) and np.any(a != b)
     assert np.mean(b) <= np.mean(a)
-    for name in plug._fields:
-        if name == "check_p_lower_eb":
-            continue
-        x, y = getattr(plug, name), getattr(boot, name)
-        if x is None:
-            assert y is None
-            continue
-        np.testing.assert_array_equal(x, y, err_msg=name)
+    _same_but_our_bound(plug, boot)

@@ -136,6 +136,13 @@ def main(argv=None) -> int:
         help="comma-separated variants: " + ", ".join(VARIANTS) + " or boot-R "
         f"(default {','.join(VARIANTS)})",
     )
+    ap.add_argument(
+        "--save",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="also write each variant's checks to DIR/<set>-<variant>.parquet",
+    )
     ap.add_argument("--json", action="store_true", help="one JSON object")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     a = ap.parse_args(argv)
@@ -158,6 +165,9 @@ def main(argv=None) -> int:
     rows = {}
     for name in names:
         checks = pd.concat([got[(o, name)] for o in objects], ignore_index=True)
+        if a.save is not None:
+            a.save.mkdir(parents=True, exist_ok=True)
+            checks.to_parquet(a.save / f"{a.set}-{name}.parquet", index=False)
         pooled = an.bound_summary(checks).iloc[0]
         per_object = an.bound_summary(checks, by_object=True)
         sens = an.stopping_sensitivity(checks, RHO_MIN, a.horizon)
