@@ -79,7 +79,7 @@ def test_quick_json_has_every_figure(quick_result):
     # The stopping checks: each bound alone, LEGS with and without them.
     for key in ("paper", "ours", "ours_fit", "ours_boot"):
         assert _positive(r["check_cost_us_per_cpu"][key]), key
-    for key in ("none", "paper", "both"):
+    for key in ("none", "paper", "both", "both_boot"):
         assert _positive(r["legs_checks_steps_per_cpu_s"][key]), key
     assert "Stopping checks" in table
 
@@ -230,9 +230,18 @@ def test_table_shows_the_check_costs_it_is_given():
             "ours_boot": 900.0,
         },
         check_cost_ours_over_paper=1.5,
-        legs_checks_steps_per_cpu_s={"none": 2.0e5, "paper": 1.2e5, "both": 1.0e5},
+        legs_checks_steps_per_cpu_s={
+            "none": 2.0e5,
+            "paper": 1.2e5,
+            "both": 1.0e5,
+            "both_boot": 0.8e5,
+        },
         legs_checks_rollouts=64,
-        legs_checks_added_us_per_check={"paper": 350.0, "ours": 170.0},
+        legs_checks_added_us_per_check={
+            "paper": 350.0,
+            "ours": 170.0,
+            "ours_boot": 420.0,
+        },
         legs_checks_both_over_none=2.0,
     )
     text = bench.format_table(r)
@@ -248,6 +257,9 @@ def test_table_shows_the_check_costs_it_is_given():
     assert (
         "the paper's bound 350 us, ours beside it (the same Dirichlet draws) 170 us"
         in text
+    )
+    assert "with ours bootstrapped: 80.0 k steps/cpu-s; ours adds 420 us a check" in (
+        text
     )
 
 

@@ -94,8 +94,14 @@ def study(
     horizon: int,
     progress: bool,
     variants: Sequence[str] = tuple(VARIANTS),
+    save: Path | None = None,
 ):
-    """Per object and variant: the checks (:func:`checks_frame`)."""
+    """Per object and variant: the checks (:func:`checks_frame`). With ``save``,
+    each object's checks are written to ``save/<set>/<variant>/<object>.parquet``
+    as soon as they are computed, and read back instead of recomputed when they
+    are there (an interrupted study resumes; the files do not record the sizes:
+    use one folder per study)."""
+    import jax
     from tqdm.auto import tqdm
 
     from legs_jax import runtime  # jax: only when the study runs, not for --help
@@ -105,18 +111,36 @@ def study(
         raise SystemExit(f"error: no problem files of set '{set_name}'")
     out = {}
     for i, path in enumerate(tqdm(files, desc=set_name, disable=not progress)):
-        pb = problem.load(path)
-        batch = problem.stack([pb], num_trials=min(trials, pb.num_trials))
+        pb = None
         for name in variants:
+            kept = (
+                None
+                if save is None
+                else save / set_name / name / f"{path.stem}.parquet"
+            )
+            if kept is not None and kept.exists():
+                out[(path.stem, name)] = pd.read_parquet(kept)
+                continue
+            if pb is None:
+                pb = problem.load(path)
+                batch = problem.stack([pb], num_trials=min(trials, pb.num_trials))
             leave_out, start, replicates = variant(name)
             r = runtime.run(
                 batch, "legs", object_ids=[i], num_rollouts=rollouts,
                 horizon=horizon, check_every=100, eb_leave_out_rec=leave_out,
                 eb_fit_start=start, eb_replicates=replicates, progress=False,
             )  # fmt: skip
-            out[(pb.name, name)] = checks_frame(
+            out[(path.stem, name)] = checks_frame(
                 pb.name, r.check_p_lower_eb, r.check_true_performance, r.check_steps
             )
+            if kept is not None:
+                kept.parent.mkdir(parents=True, exist_ok=True)
+                out[(path.stem, name)].to_parquet(kept, index=False)
+        # each object's shapes compile anew: drop the programs of the last one.
+        # (Even so, the compiler's code mappings grow: on EGAD a process has
+        # aborted after about 26 objects of three variants. With ``save`` a
+        # rerun of the same command resumes where it stopped.)
+        jax.clear_caches()
     return out
 
 
@@ -141,7 +165,8 @@ def main(argv=None) -> int:
         type=Path,
         default=None,
         metavar="DIR",
-        help="also write each variant's checks to DIR/<set>-<variant>.parquet",
+        help="keep each object's checks in DIR/<set>/<variant>/<object>.parquet "
+        "(a rerun with the same DIR resumes from them)",
     )
     ap.add_argument("--json", action="store_true", help="one JSON object")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -155,7 +180,7 @@ def main(argv=None) -> int:
             variant(name)
     except ValueError as e:
         ap.error(str(e))
-    got = study(a.set, a.trials, a.rollouts, a.horizon, not a.quiet, names)
+    got = study(a.set, a.trials, a.rollouts, a.horizon, not a.quiet, names, a.save)
     objects = sorted({o for o, _ in got})
     truth = pd.concat([got[(o, names[0])] for o in objects], ignore_index=True)
     oracle = an.stopping_sensitivity(
@@ -165,9 +190,6 @@ def main(argv=None) -> int:
     rows = {}
     for name in names:
         checks = pd.concat([got[(o, name)] for o in objects], ignore_index=True)
-        if a.save is not None:
-            a.save.mkdir(parents=True, exist_ok=True)
-            checks.to_parquet(a.save / f"{a.set}-{name}.parquet", index=False)
         pooled = an.bound_summary(checks).iloc[0]
         per_object = an.bound_summary(checks, by_object=True)
         sens = an.stopping_sensitivity(checks, RHO_MIN, a.horizon)

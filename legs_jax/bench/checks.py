@@ -47,7 +47,8 @@ BOOT_REPLICATES = 8
 
 def _check_inputs(rows: int, poses: int, slots: int, seed: int = 0):
     """LEGS-like inputs of a check: [rows, poses, slots] counts, about half of
-    the slots attempted, one recommended slot a pose, every pose observed."""
+    the slots attempted, one recommended slot a pose, every pose observed, and
+    the pruned grasps' [rows, poses, CELLS] cell counts."""
     rng = np.random.default_rng(seed)
     shape = (rows, poses, slots)
     tries = np.where(rng.uniform(size=shape) < 0.5, rng.integers(1, 12, shape), 0)
@@ -61,7 +62,12 @@ def _check_inputs(rows: int, poses: int, slots: int, seed: int = 0):
     counts = rng.integers(1, 200, (rows, poses)).astype(np.float32)
     observed = np.ones((rows, poses), bool)
     values = rng.uniform(0.3, 0.9, (rows, 1, poses)).astype(np.float32)
-    return succ, fail, fit, rec, counts, observed, values
+    # grasps an active set pruned: a quarter of the (S, F) cells hold a few
+    from legs_jax.core.stopping import CELLS
+
+    cells = (rows, poses, CELLS)
+    lost = np.where(rng.uniform(size=cells) < 0.25, rng.integers(1, 6, cells), 0)
+    return succ, fail, fit, rec, counts, observed, values, lost.astype(np.float32)
 
 
 def bench_check_cost(cfg: Settings, poses: int, quiet: bool) -> dict[str, Any]:
@@ -79,7 +85,7 @@ def bench_check_cost(cfg: Settings, poses: int, quiet: bool) -> dict[str, Any]:
 
     M, M2 = NUM_DIRICHLET_SAMPLES, NUM_EB_SAMPLES
     slots = 100  # LEGS's active set, k
-    succ, fail, fit, rec, counts, observed, values = (
+    succ, fail, fit, rec, counts, observed, values, lost = (
         jnp.asarray(x) for x in _check_inputs(CHECK_ROWS, poses, slots)
     )
     keys = jax.random.split(jax.random.key(0), CHECK_ROWS)
@@ -90,7 +96,7 @@ def bench_check_cost(cfg: Settings, poses: int, quiet: bool) -> dict[str, Any]:
 
     @jax.jit
     def ours(keys, succ, fail, fit, rec, counts, observed):
-        post = stopping.eb_posterior(succ, fail, fit, rec)
+        post = stopping.eb_posterior(succ, fail, fit, rec, lost)
         draws = stopping.draw_values(keys, post, M2)
         none = jnp.zeros((CHECK_ROWS, 0, poses), jnp.float32)
         return engine.dirichlet_quantiles(
@@ -100,7 +106,7 @@ def bench_check_cost(cfg: Settings, poses: int, quiet: bool) -> dict[str, Any]:
     @jax.jit
     def boot(keys, succ, fail, fit, rec, counts, observed):
         post = stopping.bootstrap_posterior(
-            keys, succ, fail, fit, rec, None, BOOT_REPLICATES
+            keys, succ, fail, fit, rec, lost, BOOT_REPLICATES
         )
         draws = stopping.draw_values(keys, post, M2)
         none = jnp.zeros((CHECK_ROWS, 0, poses), jnp.float32)
@@ -110,7 +116,7 @@ def bench_check_cost(cfg: Settings, poses: int, quiet: bool) -> dict[str, Any]:
 
     @jax.jit
     def fit_only(succ, fail, fit, rec):
-        return stopping.eb_posterior(succ, fail, fit, rec)
+        return stopping.eb_posterior(succ, fail, fit, rec, lost)
 
     def block(x):
         return lambda: jax.block_until_ready(x())
@@ -141,7 +147,7 @@ def bench_check_cost(cfg: Settings, poses: int, quiet: bool) -> dict[str, Any]:
 def bench_legs_checks(cfg: Settings, problem, quiet: bool) -> dict[str, Any]:
     """LEGS's rollout steps per CPU second on ``problem``: without checks, with
     the paper's bound at every check, with both bounds (as the sweep records
-    them), timed in turns."""
+    them) and with both, ours with its fit bootstrapped, timed in turns."""
     from legs_jax import runtime
     from legs_jax.core.problem import stack
 
@@ -149,7 +155,7 @@ def bench_legs_checks(cfg: Settings, problem, quiet: bool) -> dict[str, Any]:
     per_trial = max(1, cfg.rollouts_sparse // 4 // cfg.trials)
     steps = cfg.trials * per_trial * cfg.horizon
 
-    def variant(check_every, our_bound):
+    def variant(check_every, our_bound, replicates=0):
         def once():
             runtime.run(
                 batch,
@@ -159,6 +165,7 @@ def bench_legs_checks(cfg: Settings, problem, quiet: bool) -> dict[str, Any]:
                 horizon=cfg.horizon,
                 check_every=check_every,
                 our_bound=our_bound,
+                eb_replicates=replicates,
                 progress=False,
             )
 
@@ -168,6 +175,7 @@ def bench_legs_checks(cfg: Settings, problem, quiet: bool) -> dict[str, Any]:
         "none": variant(None, True),
         "paper": variant(CHECK_EVERY, False),
         "both": variant(CHECK_EVERY, True),
+        "both_boot": variant(CHECK_EVERY, True, BOOT_REPLICATES),
     }
     _say("checks: LEGS without checks, with the paper's bound, with both", quiet)
     for fn in fns.values():
@@ -179,6 +187,7 @@ def bench_legs_checks(cfg: Settings, problem, quiet: bool) -> dict[str, Any]:
     added = {
         "paper": steps / per_cpu["paper"] - steps / per_cpu["none"],
         "ours": steps / per_cpu["both"] - steps / per_cpu["paper"],
+        "ours_boot": steps / per_cpu["both_boot"] - steps / per_cpu["paper"],
     }
     return {
         "legs_checks_steps_per_cpu_s": per_cpu,

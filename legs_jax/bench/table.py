@@ -163,4 +163,12 @@ def _check_lines(r: dict[str, Any]) -> list[str]:
         f"({r['legs_checks_both_over_none']:.2f}x the time without)",
         f"  a check adds: the paper's bound {added['paper']:.0f} us, ours beside it "
         f"(the same Dirichlet draws) {added['ours']:.0f} us",
+        *(
+            [
+                f"  with ours bootstrapped: {_fmt_rate(steps['both_boot'])} "
+                f"steps/cpu-s; ours adds {added['ours_boot']:.0f} us a check"
+            ]
+            if "ours_boot" in added
+            else []
+        ),
     ]
