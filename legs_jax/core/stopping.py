@@ -60,7 +60,8 @@ posterior is the product and p' is a draw of the true performance
 Σ_s λ_s p_{s, rec} (unobserved poses count 0, which only lowers it). Its δ_stop
 quantile is therefore below the truth with probability 1 − δ_stop under the
 model. What is not exact: G_s is estimated (plug-in empirical Bayes, its own
-uncertainty ignored), and a forgotten grasp with more than ``CAP - 1`` successes
+uncertainty ignored; :func:`bootstrap_posterior` carries it, at about four times
+the cost of a check), and a forgotten grasp with more than ``CAP - 1`` successes
 or failures is counted at the cap. Ground truth never enters.
 """
 
