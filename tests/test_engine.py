@@ -574,6 +574,16 @@ def test_dirichlet_checks_in_row_blocks_equal_small_batches():
             )
 
 
+def _small_legs_run(**extra):
+    """LEGS on a small synthetic problem (3 poses, 120 grasps), 3 rollouts of
+    200 steps checked every 50; ``extra``: arguments of runtime.run."""
+    prob = make_problem(seed=5, num_poses=3, num_grasps=120, num_trials=1, name="ob")
+    return runtime.run(
+        stack([prob]), "legs", object_ids=[7], num_rollouts=3, horizon=200,
+        check_every=50, hparams={"k": 20}, progress=False, **extra,
+    )  # fmt: skip
+
+
 def _same_but_our_bound(a, b):
     """Every field of two runs' results but our bound's is the same bit for bit."""
     for name in a._fields:
@@ -589,13 +599,8 @@ def _same_but_our_bound(a, b):
 def test_the_paper_bound_alone_leaves_every_other_field_as_it_was():
     """``our_bound=False`` skips our bound's fit: its field is NaN and every other
     field, the paper's bound included, is the same bit for bit as with it."""
-    prob = make_problem(seed=5, num_poses=3, num_grasps=120, num_trials=1, name="ob")
-    kw = dict(
-        object_ids=[7], num_rollouts=3, horizon=200, check_every=50,
-        hparams={"k": 20}, progress=False,
-    )  # fmt: skip
-    both = runtime.run(stack([prob]), "legs", **kw)
-    paper = runtime.run(stack([prob]), "legs", our_bound=False, **kw)
+    both = _small_legs_run()
+    paper = _small_legs_run(our_bound=False)
     assert np.all(np.isfinite(both.check_p_lower_eb))
     assert np.all(np.isnan(paper.check_p_lower_eb))
     _same_but_our_bound(both, paper)
@@ -605,13 +610,8 @@ def test_the_bootstrap_of_our_bound_changes_only_our_bound():
     """``eb_replicates=R`` averages our bound's posterior over R bootstrap fits of
     G_s: only ``check_p_lower_eb`` moves (every other field, the paper's bound
     included, keeps its bits), and on average it moves down, not up."""
-    prob = make_problem(seed=5, num_poses=3, num_grasps=120, num_trials=1, name="ob")
-    kw = dict(
-        object_ids=[7], num_rollouts=4, horizon=300, check_every=50,
-        hparams={"k": 20}, progress=False,
-    )  # fmt: skip
-    plug = runtime.run(stack([prob]), "legs", **kw)
-    boot = runtime.run(stack([prob]), "legs", eb_replicates=4, **kw)
+    plug = _small_legs_run()
+    boot = _small_legs_run(eb_replicates=4)
     a, b = plug.check_p_lower_eb, boot.check_p_lower_eb
     assert np.all(np.isfinite(b)) and np.any(a != b)
     assert np.mean(b) <= np.mean(a)
