@@ -281,6 +281,29 @@ def test_our_bound_follows_the_outcomes(tmp_path, ok):
         assert b["p_lower_ours"] < 0.2 and not b["stop_ours"]
 
 
+def test_the_bootstrapped_bound_is_kept_by_the_session_and_replayed(tmp_path):
+    """A session created with ``bound_replicates`` computes our bound from the
+    bootstrapped fit: it differs from a plug-in session's on the same outcomes,
+    and a resumed session gives it again bit for bit."""
+    rng = np.random.default_rng(3)
+    script = [(int(rng.integers(3)), bool(rng.random() < 0.6)) for _ in range(60)]
+    got = {}
+    for name, r in (("plug", 0), ("boot", 8)):
+        with Session.create(
+            tmp_path / name, given_poses=given_poses(), bound_replicates=r
+        ) as ses:
+            for pose, ok in script:
+                ses.observe(pose=pose)
+                ses.ask()
+                ses.tell(ok)
+            got[name] = ses.bound(0.5)["p_lower_ours"]
+    assert got["plug"] != got["boot"]
+    with Session.open(tmp_path / "boot") as ses:
+        assert ses.loop.bound_ours(ses.counts, ses.observed, ses.step) == got["boot"]
+    with pytest.raises(InputError, match="bound_replicates"):
+        Session.create(tmp_path / "bad", given_poses=given_poses(), bound_replicates=-1)
+
+
 def test_simulate_refuses_a_bad_stopping_threshold():
     from legs_jax.online.simulate import _check_stop_at
 

@@ -106,7 +106,7 @@ def _order(q: np.ndarray, valid: np.ndarray) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=32)
-def _programs(method: str, cfg: Config):
+def _programs(method: str, cfg: Config, bound_replicates: int = 0):
     m = _method(method)
     P = cfg.num_poses
 
@@ -157,7 +157,12 @@ def _programs(method: str, cfg: Config):
             return jnp.full(1, jnp.nan, jnp.float32)
         succ, fail, fit, ids = m.counts(ms, ctx(tables, hp), cfg)
         hit = (ids == rec[..., None]) & (rec[..., None] >= 0)
-        post = stopping.eb_posterior(succ, fail, fit, hit, forgotten)
+        if bound_replicates:
+            post = stopping.bootstrap_posterior(
+                key, succ, fail, fit, hit, forgotten, bound_replicates
+            )
+        else:
+            post = stopping.eb_posterior(succ, fail, fit, hit, forgotten)
         draws = stopping.draw_values(key, post, engine.NUM_EB_SAMPLES)
         values = jnp.zeros(counts.shape[:1] + (1,) + counts.shape[1:], jnp.float32)
         return bound(key, counts, observed, values, draws)[:, -1]
@@ -188,9 +193,14 @@ class Loop:
       hparams: overrides of the method's defaults (``method.hparams``); those of
         other methods are ignored (:func:`_own`).
       rollout_key: a typed key (:func:`legs_jax.core.keys.rollout_key`).
+      bound_replicates: our bound's fit of G_s: 0 (the default) the plug-in
+        fit; R > 0 averaged over R Bayesian-bootstrap fits
+        (:func:`legs_jax.core.stopping.bootstrap_posterior`).
     """
 
-    def __init__(self, method, num_poses, num_grasps, hparams, rollout_key):
+    def __init__(
+        self, method, num_poses, num_grasps, hparams, rollout_key, bound_replicates=0
+    ):
         self.method = method
         m = _method(method)
         self.hp_values = check_hparams(method, _own(method, hparams), num_grasps)
@@ -208,7 +218,7 @@ class Loop:
         P, K = self.cfg.num_poses, self.cfg.num_grasps
         self.q = np.zeros((P, K), np.float32)
         self.valid = np.zeros((P, K), bool)
-        self._fn = _programs(method, self.cfg)
+        self._fn = _programs(method, self.cfg, int(bound_replicates))
         self._method_key = keys_mod.method_key(rollout_key[None])
         self._check_key = keys_mod.check_key(rollout_key[None])
         self._tables = self._make_tables()

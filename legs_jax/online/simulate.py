@@ -94,6 +94,7 @@ class Simulation:
         eval_every: int | None = None,
         steps: int | None = None,
         prior: str = "learned",
+        bound_replicates: int = 0,
     ):
         self.folder = Path(folder)
         self.world = world
@@ -151,6 +152,7 @@ class Simulation:
                 reservoir_size=reservoir_size,
                 given_poses=given,
                 prior=prior,
+                bound_replicates=bound_replicates,
                 note=f"simulated robot: {world.name}",
             )
             self.steps = int(steps if steps is not None else 1000)
