@@ -315,6 +315,16 @@ def test_bound_design_scores_checks_and_refuses_bad_sizes(capsys):
         bound_design.main(["--rollouts", "0"])
     assert e.value.code == 2
     assert "--rollouts must be at least 1" in capsys.readouterr().err
+    # the variants: the three designs by name, the bootstrap as boot-R
+    assert bound_design.variant("pooled") == (True, "pooled", 0)
+    assert bound_design.variant("boot-8") == (True, "pooled", 8)
+    for bad in ("boot-0", "boot-", "boot-x", "wide"):
+        with pytest.raises(ValueError, match="unknown variant"):
+            bound_design.variant(bad)
+    with pytest.raises(SystemExit) as e:
+        bound_design.main(["--variants", "pooled,wide"])
+    assert e.value.code == 2
+    assert "unknown variant 'wide'" in capsys.readouterr().err
 
 
 def _misspecified_checks(n, seed, poses, drops, tries, draw_p):
