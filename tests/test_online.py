@@ -281,6 +281,7 @@ def test_our_bound_follows_the_outcomes(tmp_path, ok):
         assert b["p_lower_ours"] < 0.2 and not b["stop_ours"]
 
 
+@pytest.mark.slow  # compiles a second set of the session's programs (~20 s)
 def test_the_bootstrapped_bound_is_kept_by_the_session_and_replayed(tmp_path):
     """A session created with ``bound_replicates`` computes our bound from the
     bootstrapped fit: it differs from a plug-in session's on the same outcomes,
