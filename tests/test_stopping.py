@@ -436,6 +436,12 @@ def test_unit_weights_are_the_plug_in_fit():
         stopping.eb_posterior(succ, fail, fit, rec, weights=np.ones(succ.shape))
     )
     np.testing.assert_array_equal(ones, plain)
+    # no replicates: the bootstrap is the plug-in fit, bit for bit
+    keys = jax.random.split(jax.random.key(0), succ.shape[0])
+    zero = stopping.bootstrap_posterior(keys, succ, fail, fit, rec, None, 0)
+    np.testing.assert_array_equal(np.asarray(zero), plain)
+    with pytest.raises(ValueError, match="at least 0"):
+        stopping.bootstrap_posterior(keys, succ, fail, fit, rec, None, -1)
     # a weight of 2 is the grasp counted twice
     w = np.ones(succ.shape, np.float32)
     w[..., 5] = 2.0

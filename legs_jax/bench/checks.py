@@ -94,25 +94,23 @@ def bench_check_cost(cfg: Settings, poses: int, quiet: bool) -> dict[str, Any]:
     def paper(keys, counts, observed, values):
         return engine.dirichlet_quantiles(keys, counts, observed, values, DELTA_STOP, M)
 
-    @jax.jit
-    def ours(keys, succ, fail, fit, rec, counts, observed):
-        post = stopping.eb_posterior(succ, fail, fit, rec, lost)
-        draws = stopping.draw_values(keys, post, M2)
-        none = jnp.zeros((CHECK_ROWS, 0, poses), jnp.float32)
-        return engine.dirichlet_quantiles(
-            keys, counts, observed, none, DELTA_STOP, M2, draws=draws
-        )
+    def ours_with(replicates):
+        """Our check with ``replicates`` bootstrap fits of G_s (0: plug-in)."""
 
-    @jax.jit
-    def boot(keys, succ, fail, fit, rec, counts, observed):
-        post = stopping.bootstrap_posterior(
-            keys, succ, fail, fit, rec, lost, BOOT_REPLICATES
-        )
-        draws = stopping.draw_values(keys, post, M2)
-        none = jnp.zeros((CHECK_ROWS, 0, poses), jnp.float32)
-        return engine.dirichlet_quantiles(
-            keys, counts, observed, none, DELTA_STOP, M2, draws=draws
-        )
+        @jax.jit
+        def ours(keys, succ, fail, fit, rec, counts, observed):
+            post = stopping.bootstrap_posterior(
+                keys, succ, fail, fit, rec, lost, replicates
+            )
+            draws = stopping.draw_values(keys, post, M2)
+            none = jnp.zeros((CHECK_ROWS, 0, poses), jnp.float32)
+            return engine.dirichlet_quantiles(
+                keys, counts, observed, none, DELTA_STOP, M2, draws=draws
+            )
+
+        return ours
+
+    ours, boot = ours_with(0), ours_with(BOOT_REPLICATES)
 
     @jax.jit
     def fit_only(succ, fail, fit, rec):

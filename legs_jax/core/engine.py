@@ -572,15 +572,11 @@ def simulate(
         succ, fail, fit, ids = m.counts(c.mstate, ctx, cfg)
         rec = (ids == c.rec[..., None]) & (c.rec[..., None] >= 0)
         lost = c.forgotten if track else None
-        if eb_replicates:
-            k = keys_mod.step_keys(keys_mod.check_key(rollout_keys), idx)
-            return stopping.bootstrap_posterior(
-                k, succ, fail, fit, rec, lost, eb_replicates, eb_leave_out_rec,
-                eb_fit_start,
-            )  # fmt: skip
-        return stopping.eb_posterior(
-            succ, fail, fit, rec, lost, eb_leave_out_rec, eb_fit_start
-        )
+        k = keys_mod.step_keys(keys_mod.check_key(rollout_keys), idx)  # R > 0 only
+        return stopping.bootstrap_posterior(
+            k, succ, fail, fit, rec, lost, eb_replicates, eb_leave_out_rec,
+            eb_fit_start,
+        )  # fmt: skip
 
     def check(c: _Loop, idx):
         v_all, v_att = m.estimates(c.mstate, ctx, cfg)

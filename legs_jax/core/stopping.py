@@ -247,12 +247,15 @@ def bootstrap_posterior(
     bootstrap, then of p_rec given G_s. ``keys``: [B] typed keys (row b's weights
     come from ``fold_in(keys[b], BOOT_STREAM)``: Exp(1) draws for the grasps,
     exact Gamma draws of :func:`legs_jax.core.sampling.gamma_rows` for the
-    cells).
+    cells). ``replicates=0`` is the plug-in fit, :func:`eb_posterior` itself
+    (``keys`` unused), so that callers choose the fit by one number.
     """
     B, P, N = succ.shape
     R = int(replicates)
-    if R < 1:
-        raise ValueError(f"replicates must be at least 1, got {replicates}")
+    if R < 0:
+        raise ValueError(f"replicates must be at least 0, got {replicates}")
+    if R == 0:
+        return eb_posterior(succ, fail, fit, rec, forgotten, leave_out_rec, start)
     k = jax.vmap(lambda k: jax.random.split(jax.random.fold_in(k, BOOT_STREAM)))(keys)
     w = jax.vmap(lambda k: jax.random.exponential(k, (R, P, N), jnp.float32))(k[:, 0])
     cw = None

@@ -157,12 +157,9 @@ def _programs(method: str, cfg: Config, bound_replicates: int = 0):
             return jnp.full(1, jnp.nan, jnp.float32)
         succ, fail, fit, ids = m.counts(ms, ctx(tables, hp), cfg)
         hit = (ids == rec[..., None]) & (rec[..., None] >= 0)
-        if bound_replicates:
-            post = stopping.bootstrap_posterior(
-                key, succ, fail, fit, hit, forgotten, bound_replicates
-            )
-        else:
-            post = stopping.eb_posterior(succ, fail, fit, hit, forgotten)
+        post = stopping.bootstrap_posterior(
+            key, succ, fail, fit, hit, forgotten, bound_replicates
+        )
         draws = stopping.draw_values(key, post, engine.NUM_EB_SAMPLES)
         values = jnp.zeros(counts.shape[:1] + (1,) + counts.shape[1:], jnp.float32)
         return bound(key, counts, observed, values, draws)[:, -1]
