@@ -177,13 +177,32 @@ def bench_sampler_versions(cfg: Settings, quiet: bool) -> dict[str, Any]:
     (:func:`_thompson_shapes`), on one JAX device, timed in turns in this run;
     and one Thompson draw step (the [B, 2000] draw and its argmax, as BORGES K=2000
     takes it) with each sampler. Rates per wall second and per CPU second (the
-    per-core figure: XLA may run one device's program on several threads)."""
+    per-core figure: XLA may run one device's program on several threads, and
+    what those threads spend waiting on each other counts).
+
+    Then the same in a child process held to one core (``one_core_*`` keys, where
+    the operating system lets a process choose its cores): all three on the same
+    single core, so "per core" means exactly one core, not CPU seconds of a
+    program spread over several."""
+    out = _sampler_versions(cfg.sampler_rows, cfg.sampler_arms, cfg, quiet)
+    _say("sampler versions: again, held to one core (child process)", quiet)
+    one = _sampler_versions_one_core(cfg)
+    out.update({f"one_core_{k}": v for k, v in one.items() if k.startswith(_RATES)})
+    return out
+
+
+# The keys of _sampler_versions that are rates or ratios (what the one-core run adds).
+_RATES = ("sampler_old", "sampler_new", "sampler_numpy", "thompson_step")
+
+
+def _sampler_versions(
+    rows: int, arms: int, cfg: Settings, quiet: bool
+) -> dict[str, Any]:
     import jax
     import jax.numpy as jnp
 
     from legs_jax.core import beta_sampler, sampling
 
-    rows, arms = cfg.sampler_rows, cfg.sampler_arms
     a, b = _thompson_shapes(rows, arms)
     dev = jax.local_devices()[0]
     keys = jax.device_put(jax.random.split(jax.random.key(2), rows), dev)
@@ -237,6 +256,44 @@ def bench_sampler_versions(cfg: Settings, quiet: bool) -> dict[str, Any]:
         step_rates["new"]["per_cpu_s"] / step_rates["old"]["per_cpu_s"]
     )
     return out
+
+
+# The child of _sampler_versions_one_core: holds itself to one core before JAX
+# (and with it XLA's thread pool) starts, then prints its rates as JSON.
+_ONE_CORE_CHILD = """
+import json, os, sys
+os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+from legs_jax.bench.common import Settings
+from legs_jax.bench.sampler import _sampler_versions
+args = json.loads(sys.argv[1])
+cfg = Settings(**args["cfg"])
+print(json.dumps(_sampler_versions(args["rows"], args["arms"], cfg, True)))
+"""
+
+
+def _sampler_versions_one_core(cfg: Settings) -> dict[str, Any]:
+    """:func:`_sampler_versions` in a child process held to one core; empty where
+    the operating system has no way to choose a process's cores."""
+    import dataclasses
+    import json
+    import os
+    import subprocess
+    import sys
+
+    if not hasattr(os, "sched_setaffinity"):
+        return {}
+    args = {
+        "cfg": dataclasses.asdict(cfg),
+        "rows": cfg.sampler_rows,
+        "arms": cfg.sampler_arms,
+    }
+    done = subprocess.run(
+        [sys.executable, "-c", _ONE_CORE_CHILD, json.dumps(args)],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    return json.loads(done.stdout.strip().splitlines()[-1])
 
 
 def bench_memory(cfg: Settings) -> dict[str, float]:

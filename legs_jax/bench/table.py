@@ -70,6 +70,21 @@ def format_table(r: dict[str, Any]) -> str:
             f"{_fmt_rate(r['thompson_step_new_per_cpu_s'])}/cpu-s "
             f"({r['thompson_step_new_over_old_per_cpu_s']:.2f}x)"
         )
+        if "one_core_sampler_new_samples_per_cpu_s" in r:
+            one = {
+                k[len("one_core_") :]: v
+                for k, v in r.items()
+                if k.startswith("one_core_")
+            }
+            lines.append(
+                "  held to one core (all three on the same core): old "
+                f"{_fmt_rate(one['sampler_old_samples_per_cpu_s'])}/s, new "
+                f"{_fmt_rate(one['sampler_new_samples_per_cpu_s'])}/s, numpy "
+                f"{_fmt_rate(one['sampler_numpy_samples_per_cpu_s'])}/s: new/numpy "
+                f"{one['sampler_new_over_numpy_per_cpu_s']:.2f}x, old/numpy "
+                f"{one['sampler_old_over_numpy_per_cpu_s']:.2f}x; Thompson step "
+                f"new/old {one['thompson_step_new_over_old_per_cpu_s']:.2f}x"
+            )
         lines.append("")
     lines += [
         f"  random words (Threefry-2x32, one device) "

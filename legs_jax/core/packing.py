@@ -81,7 +81,10 @@ def _pending_slots(pending: jax.Array, capacity: int, *, with_count: bool = Fals
     slot = jnp.arange(capacity, dtype=jnp.int32)
     valid = slot < before[-1] + counts[-1]
     block = jnp.minimum(block, nw - 1)  # (only past the last pending entry)
-    pos = block * 32 + _select_bit(words[block], slot - before[block])
+    # The two gathers in a pass of their own: in the same pass as the bit search
+    # they turn its vector loop into a scalar one.
+    word, first = jax.lax.optimization_barrier((words[block], before[block]))
+    pos = block * 32 + _select_bit(word, slot - first)
     idx = jnp.where(valid, pos, m)
     idx = _materialized(idx, m)
     return (idx, before[-1] + counts[-1]) if with_count else idx
