@@ -186,12 +186,12 @@ def test_early_stopping_reports_ours_on_both_sets(world):
         assert f"{100 * acc:.1f} %" in row and f"{100 * tight:.2f} %" in row
     report = (world["out1"] / "REPORT.md").read_text()
     assert "Ours on the EGAD! evaluation set (a design set too)" in report
-    # Stopping on ours, per set, recomputed run by run: the lowest share of
-    # stopped runs truly above rho_min over the thresholds where one stopped.
+    # Stopping on ours, per set, recomputed run by run: every stop (a run at a
+    # threshold) truly above rho_min or not, and the lowest share at one threshold.
     from experiments.early_stopping.sweep import RHO_MIN
 
     for c, label in ((es, "Dex-Net Adversarial"), (held, "EGAD! evaluation")):
-        worst = None
+        worst, total, misses = None, 0, 0
         for rho in RHO_MIN:
             ok = []
             for _, run in c.groupby(["object", "trial", "rollout"]):
@@ -199,6 +199,8 @@ def test_early_stopping_reports_ours_on_both_sets(world):
                 hit = hit[hit["p_lower_eb"] >= rho]
                 if len(hit):
                     ok.append(hit["true_performance"].iloc[0] >= rho)
+            total += len(ok)
+            misses += len(ok) - int(np.sum(ok))
             if ok and (worst is None or np.mean(ok) < worst[0]):
                 worst = (np.mean(ok), rho)
         line = next(
@@ -208,8 +210,16 @@ def test_early_stopping_reports_ours_on_both_sets(world):
         )
         if worst is None:
             assert "no run stopped" in line
+        elif misses == 0:
+            assert f"every stop was truly above ρ_min ({total} stops" in line
         else:
-            assert f"at least {100 * worst[0]:.1f} % (at ρ_min = {worst[1]:.2f}" in line
+            assert f"{total - misses} of {total} stops" in line
+            assert f"{100 * worst[0]:.2f} % (at ρ_min = {worst[1]:.2f}" in line
+        # the verified stop beside it, on the same set
+        assert any(
+            x.startswith(f"- Stopping on ours, verified ({label}")
+            for x in report.splitlines()
+        )
 
 
 def test_early_stopping_values(world):

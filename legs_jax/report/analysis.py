@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from legs_jax.core import verify
 from legs_jax.results import hparam_columns
 
 __all__ = [
@@ -399,6 +400,60 @@ def bound_summary(checks: pd.DataFrame, by_object: bool = False) -> pd.DataFrame
                 tightness=float(np.mean(tp - lo)),
             )
             rows.append(row)
+    return pd.DataFrame(rows)
+
+
+# The stopping rule that tests before it stops (legs_jax.core.verify), on our bound.
+VERIFIED = "verified"
+
+
+def verified_stopping(
+    checks: pd.DataFrame,
+    rho_min: Sequence[float],
+    horizon: int,
+    seed: int = 0,
+    delta: float = 0.05,
+) -> pd.DataFrame:
+    """Verified stopping against the threshold rho_min, replayed on the runs'
+    checks (:func:`legs_jax.core.verify.simulate_stops`): at a check where our
+    bound reaches rho_min the recommendations are frozen and tested by attempts
+    whose outcomes are drawn from their true performance (as the environment
+    draws every outcome), with a generator seeded by ``seed`` and rho_min, so the
+    rows are reproducible. Rows as :func:`stopping_sensitivity`'s (``bound`` is
+    ``"verified"``), plus ``mean_attempts``: verification attempts per run."""
+    _require(checks, [*_RUN_KEYS, "step", "true_performance"], "checks.parquet")
+    col = BOUNDS["ours"]
+    if col not in checks.columns or not np.isfinite(checks[col].to_numpy(float)).any():
+        raise AnalysisError("checks.parquet has no checks of our bound")
+    lo = checks.pivot_table(
+        index=_RUN_KEYS, columns="step", values=col, aggfunc="first"
+    )
+    tp = checks.pivot_table(
+        index=_RUN_KEYS, columns="step", values="true_performance", aggfunc="first"
+    ).reindex(index=lo.index, columns=lo.columns)
+    steps = lo.columns.to_numpy(np.int64)
+    L, V = lo.to_numpy(np.float64), tp.to_numpy(np.float64)
+    rows = []
+    for rho in rho_min:
+        rng = np.random.default_rng([seed, int(round(1000 * rho))])
+        r = verify.simulate_stops(L, V, steps, float(rho), horizon, rng, delta)
+        stopped = r["stopped"]
+        n_stop = int(stopped.sum())
+        rows.append(
+            dict(
+                bound=VERIFIED,
+                rho_min=float(rho),
+                n_runs=len(L),
+                n_stopped=n_stop,
+                frac_stopped=n_stop / len(L) if len(L) else float("nan"),
+                accuracy=float(np.mean(r["truth"][stopped] >= rho))
+                if n_stop
+                else float("nan"),
+                mean_stop_step=float(r["stop_step"].mean()),
+                se_stop_step=_se(r["stop_step"]),
+                mean_attempts=float(r["attempts"].mean()),
+            )
+        )
     return pd.DataFrame(rows)
 
 

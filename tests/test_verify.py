@@ -1,0 +1,195 @@
+"""Verified stopping (legs_jax.core.verify): the test's evidence, its validity at
+the worst truth (the threshold itself), its power, and its replay on recorded
+checks. Statistical claims use fixed seeds and binomial tolerances of 3 standard
+errors."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import integrate
+
+from legs_jax.core import verify
+from legs_jax.report import analysis as an
+
+DELTA = 0.05
+
+
+def _tol(p: float, n: int) -> float:
+    return 3.0 * math.sqrt(p * (1.0 - p) / n)
+
+
+@pytest.mark.parametrize(
+    "k,n,rho", [(0, 1, 0.5), (9, 10, 0.8), (40, 50, 0.9), (3, 20, 0.3), (95, 100, 0.95)]
+)
+@pytest.mark.parametrize("above", [True, False])
+def test_evidence_is_the_uniform_mixture_likelihood_ratio(k, n, rho, above):
+    # the mixture integrated numerically, against the closed form
+    lo, hi = (rho, 1.0) if above else (0.0, rho)
+    num, _ = integrate.quad(
+        lambda p: p**k * (1 - p) ** (n - k), lo, hi, epsabs=0, epsrel=1e-10
+    )
+    want = math.log(num / (hi - lo)) - k * math.log(rho) - (n - k) * math.log1p(-rho)
+    assert verify.log_evidence(k, n, rho, above) == pytest.approx(want, rel=1e-7)
+
+
+def test_spending_sums_to_delta():
+    j = np.arange(1, 200_001)
+    assert verify.spend(j, DELTA).sum() == pytest.approx(DELTA, rel=1e-4)
+    assert verify.spend(1, DELTA) == DELTA / 2
+
+
+def _always(rows, checks, value):
+    return np.full((rows, checks), value)
+
+
+@pytest.mark.parametrize(
+    "rho,below",
+    [
+        (0.8, 0.0),
+        pytest.param(0.5, 0.0, marks=pytest.mark.slow),
+        pytest.param(0.9, 0.02, marks=pytest.mark.slow),
+    ],
+)
+def test_runs_below_the_threshold_stop_at_most_delta_of_the_time(rho, below):
+    # The worst case: the bound calls for a test at every check (30 of them) and
+    # the truth is at (or just under) the threshold; every phase may use all the
+    # attempts the budget leaves. At most δ of the runs may stop.
+    runs, checks = 2000, 30
+    truth = rho - below
+    out = verify.simulate_stops(
+        _always(runs, checks, 1.0),
+        _always(runs, checks, truth),
+        100 * np.arange(1, checks + 1),
+        rho,
+        3000,
+        np.random.default_rng(1),
+    )
+    rate = out["stopped"].mean()
+    assert rate <= DELTA + _tol(DELTA, runs), rate
+    # the budget holds: nobody stops after H, and the attempts fit in it
+    assert out["stop_step"].max() <= 3000
+    assert (100 + out["attempts"] <= 3000).all()
+
+
+def test_a_single_phase_at_the_threshold_certifies_at_most_its_level():
+    # One phase at level δ_1 = δ/2 with the truth at ρ and 1500 attempts.
+    rho, runs = 0.7, 3000
+    used, how = verify._phase(
+        np.full(runs, rho),
+        np.full(runs, 1500),
+        np.full(runs, verify.spend(1, DELTA)),
+        rho,
+        np.random.default_rng(2),
+    )
+    rate = np.mean(how == 1)
+    assert rate <= DELTA / 2 + _tol(DELTA / 2, runs), rate
+    # and a truth at the threshold is refuted or runs out of budget otherwise
+    assert set(np.unique(how)) <= {0, 1, 2}
+
+
+def test_good_recommendations_are_certified_fast():
+    # τ = 0.9 against ρ = 0.8: every phase certifies, in a number of attempts of
+    # the order of log(1/δ_1) / KL(τ || ρ) (a sequential probability ratio test
+    # with the true alternative would need about that many).
+    rho, tau, runs = 0.8, 0.9, 2000
+    used, how = verify._phase(
+        np.full(runs, tau),
+        np.full(runs, 3000),
+        np.full(runs, verify.spend(1, DELTA)),
+        rho,
+        np.random.default_rng(3),
+    )
+    kl = tau * math.log(tau / rho) + (1 - tau) * math.log((1 - tau) / (1 - rho))
+    sprt = math.log(2 / DELTA) / kl
+    assert np.mean(how == 1) >= 0.99
+    assert used.mean() <= 3 * sprt, (used.mean(), sprt)
+
+
+def test_poor_recommendations_are_refuted_not_tried_forever():
+    rho, tau, runs = 0.8, 0.65, 2000
+    used, how = verify._phase(
+        np.full(runs, tau),
+        np.full(runs, 3000),
+        np.full(runs, verify.spend(1, DELTA)),
+        rho,
+        np.random.default_rng(4),
+    )
+    assert np.mean(how == 2) >= 0.99
+    assert np.mean(how == 1) <= DELTA / 2 + _tol(DELTA / 2, runs)
+    assert np.median(used) < 300
+
+
+def test_the_session_object_agrees_with_the_batched_replay():
+    # The same outcomes (the generator's first block) fed one by one.
+    rho, tau = 0.75, 0.85
+    used, how = verify._phase(
+        np.array([tau]), np.array([3000]), np.array([DELTA / 2]), rho,
+        np.random.default_rng(5),
+    )  # fmt: skip
+    gen = np.random.default_rng(5)  # the blocks _phase draws, one row each
+    draws = np.concatenate([gen.random((1, verify._BLOCK))[0] for _ in range(30)])
+    draws = draws < tau
+    v = verify.Verification(rho, DELTA)
+    v.start()
+    result = None
+    for x in draws:
+        result = v.record(bool(x))
+        if result is not None:
+            break
+    assert v.attempts == used[0]
+    assert result == (verify.CERTIFIED if how[0] == 1 else verify.REFUTED)
+
+
+def test_verification_object_spends_per_phase_and_refuses_without_a_phase():
+    v = verify.Verification(0.8, DELTA)
+    with pytest.raises(RuntimeError):
+        v.record(True)
+    v.start()
+    assert v.level == pytest.approx(DELTA / 2)
+    v.start()
+    assert v.level == pytest.approx(DELTA / 6)
+    with pytest.raises(ValueError):
+        verify.log_evidence(1, 2, 1.0)
+
+
+def test_replay_stops_where_the_bound_first_calls_for_a_test():
+    # The bound reaches ρ at check 5 only; the truth is high from there on.
+    runs, checks = 200, 10
+    trig = _always(runs, checks, 0.0)
+    trig[:, 5:] = 0.9
+    truth = _always(runs, checks, 0.5)
+    truth[:, 5:] = 0.97
+    steps = 100 * np.arange(1, checks + 1)
+    out = verify.simulate_stops(trig, truth, steps, 0.8, 3000, np.random.default_rng(6))
+    assert out["stopped"].all()
+    assert (out["stop_step"] > steps[5]).all()
+    assert (out["truth"] == 0.97).all()
+    assert (out["stop_step"] == steps[5] + out["attempts"]).all()
+
+
+def test_verified_rows_of_the_analysis():
+    # Checks of 300 runs: truth 0.9 everywhere, our bound 0.85 from step 300.
+    rows = []
+    for r in range(300):
+        for step in range(100, 1100, 100):
+            rows.append(
+                dict(object="a", trial=0, rollout=r, step=step,
+                     p_lower_eb=0.85 if step >= 300 else 0.1, true_performance=0.9)
+            )  # fmt: skip
+    checks = pd.DataFrame(rows)
+    sens = an.verified_stopping(checks, [0.5, 0.8, 0.95], horizon=1000)
+    assert list(sens["bound"]) == [an.VERIFIED] * 3
+    at = sens.set_index("rho_min")
+    assert at.loc[0.5, "accuracy"] == 1.0 and at.loc[0.8, "accuracy"] == 1.0
+    assert at.loc[0.5, "n_stopped"] == 300
+    # no test starts where the bound stays below the threshold
+    assert at.loc[0.95, "n_stopped"] == 0 and at.loc[0.95, "mean_stop_step"] == 1000
+    assert (sens["mean_stop_step"] > 300).all()
+    # reproducible: the same rows again
+    pd.testing.assert_frame_equal(
+        sens, an.verified_stopping(checks, [0.5, 0.8, 0.95], horizon=1000)
+    )
