@@ -78,7 +78,7 @@ def test_runs_below_the_threshold_stop_at_most_delta_of_the_time(rho, below):
 def test_a_single_phase_at_the_threshold_certifies_at_most_its_level():
     # One phase at level δ_1 = δ/2 with the truth at ρ and 1500 attempts.
     rho, runs = 0.7, 3000
-    used, how = verify._phase(
+    used, how, _ = verify._phase(
         np.full(runs, rho),
         np.full(runs, 1500),
         np.full(runs, verify.spend(1, DELTA)),
@@ -96,7 +96,7 @@ def test_good_recommendations_are_certified_fast():
     # the order of log(1/δ_1) / KL(τ || ρ) (a sequential probability ratio test
     # with the true alternative would need about that many).
     rho, tau, runs = 0.8, 0.9, 2000
-    used, how = verify._phase(
+    used, how, _ = verify._phase(
         np.full(runs, tau),
         np.full(runs, 3000),
         np.full(runs, verify.spend(1, DELTA)),
@@ -111,7 +111,7 @@ def test_good_recommendations_are_certified_fast():
 
 def test_poor_recommendations_are_refuted_not_tried_forever():
     rho, tau, runs = 0.8, 0.65, 2000
-    used, how = verify._phase(
+    used, how, _ = verify._phase(
         np.full(runs, tau),
         np.full(runs, 3000),
         np.full(runs, verify.spend(1, DELTA)),
@@ -126,7 +126,7 @@ def test_poor_recommendations_are_refuted_not_tried_forever():
 def test_the_session_object_agrees_with_the_batched_replay():
     # The same outcomes (the generator's first block) fed one by one.
     rho, tau = 0.75, 0.85
-    used, how = verify._phase(
+    used, how, wins = verify._phase(
         np.array([tau]), np.array([3000]), np.array([DELTA / 2]), rho,
         np.random.default_rng(5),
     )  # fmt: skip
@@ -140,7 +140,7 @@ def test_the_session_object_agrees_with_the_batched_replay():
         result = v.record(bool(x))
         if result is not None:
             break
-    assert v.attempts == used[0]
+    assert v.attempts == used[0] and v.successes == wins[0]
     assert result == (verify.CERTIFIED if how[0] == 1 else verify.REFUTED)
 
 
@@ -169,6 +169,27 @@ def test_replay_stops_where_the_bound_first_calls_for_a_test():
     assert (out["stop_step"] > steps[5]).all()
     assert (out["truth"] == 0.97).all()
     assert (out["stop_step"] == steps[5] + out["attempts"]).all()
+
+
+def test_replay_counts_the_attempts_after_a_failure_as_steps():
+    # At tau = 0.8 a fifth of the test's attempts fail, and each failure costs
+    # the attempts until the next success (the object toppled, not dropped): a
+    # phase takes more steps than the test has samples.
+    runs = 400
+    steps = np.array([100])
+    out = verify.simulate_stops(
+        _always(runs, 1, 0.9), _always(runs, 1, 0.8), steps, 0.6, 3000,
+        np.random.default_rng(7),
+    )  # fmt: skip
+    used, how, wins = verify._phase(
+        np.full(runs, 0.8), np.full(runs, 2900), np.full(runs, DELTA / 2), 0.6,
+        np.random.default_rng(7),
+    )  # fmt: skip
+    assert out["stopped"].mean() > 0.95
+    samples, fails = used.mean(), (used - wins).mean()
+    # each failure adds 1 / tau = 1.25 attempts on average (within 15 %)
+    extra = out["attempts"].mean() - samples
+    assert extra == pytest.approx(1.25 * fails, rel=0.15)
 
 
 def test_verified_rows_of_the_analysis():

@@ -180,13 +180,25 @@ def simulate_stops(
         if rows.size == 0:
             continue
         phase[rows] += 1
-        first, how = _phase(tru[rows, c], left, spend(phase[rows], delta), rho, rng)
-        win = how == 1
+        tau = tru[rows, c]
+        first, how, wins = _phase(tau, left, spend(phase[rows], delta), rho, rng)
+        # After a failed attempt the object lies where it toppled, and the robot
+        # tries again until a success drops it (those attempts are steps, not
+        # samples of the test): about a geometric number of attempts each,
+        # counted at the success rate tau.
+        fails = first - wins
+        p_next = np.clip(tau, 1e-6, 1.0)
+        used = (
+            first
+            + fails
+            + rng.negative_binomial(np.maximum(fails, 1), p_next) * (fails > 0)
+        )
+        win = (how == 1) & (used <= left)
         stopped[rows[win]] = True
-        stop_step[rows[win]] = steps[c] + spent[rows[win]] + first[win]
-        at_stop[rows[win]] = tru[rows[win], c]
-        spent[rows] += first
-        over[rows[how == 0]] = True
+        stop_step[rows[win]] = steps[c] + spent[rows[win]] + used[win]
+        at_stop[rows[win]] = tau[win]
+        spent[rows] += np.minimum(used, left)
+        over[rows[~win & ((how == 0) | (used >= left))]] = True
     return dict(stopped=stopped, stop_step=stop_step, truth=at_stop, attempts=spent)
 
 
@@ -197,7 +209,8 @@ _BLOCK = 128
 def _phase(tau, left, level, rho, rng):
     """Phases run side by side: attempts succeed with probability ``tau``, at most
     ``left`` of them, at level ``level``. Returns (attempts used, outcome: 1
-    certified, 2 gave up, 0 out of budget), both [rows]."""
+    certified, 2 gave up, 0 out of budget, successes among the attempts used),
+    each [rows]."""
     rows = tau.shape[0]
     need = -np.log(level)
     k = np.zeros(rows, np.int64)
@@ -219,9 +232,11 @@ def _phase(tau, left, level, rho, rng):
         used[todo[end_c]] = n0 + fc[end_c] + 1
         used[todo[end_g]] = n0 + fg[end_g] + 1
         used[todo[out]] = left[todo[out]]
+        end = np.where(end_c, fc, np.where(end_g, fg, _BLOCK - 1))
+        end = np.minimum(end, np.maximum(left[todo] - n0 - 1, 0))
+        k[todo] = np.take_along_axis(kk, end[:, None], axis=1)[:, 0]
         how[todo[end_c]] = 1
         how[todo[end_g]] = 2
-        k[todo] = kk[:, -1]
         todo = todo[~(end_c | end_g | out)]
         n0 += _BLOCK
-    return used, how
+    return used, how, k

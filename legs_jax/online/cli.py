@@ -239,6 +239,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="stop at the first curve point whose stopping bound (ours, "
         "legs_jax.core.stopping) is at least RHO_MIN",
     )
+    p.add_argument(
+        "--verify",
+        action="store_true",
+        help="with --stop-at: where the bound reaches RHO_MIN, try the frozen "
+        "recommended grasps until a sequential test certifies RHO_MIN (stop) or "
+        "refutes it (explore on); a run stops below RHO_MIN with probability at "
+        "most 0.05 (legs_jax.core.verify)",
+    )
     quiet_arg(p)
     _session_args(p)
     _cache_arg(p)
@@ -403,12 +411,29 @@ def _find_problem(name: str):
         return None
 
 
-def _print_stop(sim, stop_at) -> None:
+def _print_stop(sim, stop_at, verify: bool = False) -> None:
     if stop_at is None:
         return
     r = sim.stopped
+    v = sim.session.verification_state()
+    if verify and r is not None:
+        st = v["stopped"]
+        print(
+            f"stopped at step {r['step']}: rho_min {stop_at:.3f} certified by "
+            f"{st['attempts']} attempts of the frozen recommendations after a "
+            f"landing ({st['successes']} successes; {st['phase_steps']} steps in "
+            f"verification phase {st['phase']}); true success rate of the "
+            f"recommendations {r['performance']:.3f}"
+        )
+        return
     if r is None:
-        print(f"no stop: our bound stayed below rho_min = {stop_at:.3f}")
+        if verify and v is not None:
+            print(
+                f"no stop: {v['phase']} verification phase(s) at rho_min = "
+                f"{stop_at:.3f}, none certified"
+            )
+        else:
+            print(f"no stop: our bound stayed below rho_min = {stop_at:.3f}")
         return
     print(
         f"stopped at step {r['step']}: our bound {r['p_lower_ours']:.3f} >= rho_min "
@@ -433,6 +458,10 @@ def _simulate(args) -> int:
         raise InputError(f"--steps must be at least 1, got {args.steps}")
     if args.eval_every is not None and args.eval_every < 1:
         raise InputError(f"--eval-every must be at least 1, got {args.eval_every}")
+    if args.verify and args.stop_at is None:
+        raise InputError("--verify needs --stop-at RHO_MIN, the threshold to test")
+    if args.verify and not 0.0 < args.stop_at < 1.0:
+        raise InputError(f"--stop-at must be in (0, 1) to verify, got {args.stop_at}")
     if args.object is None and args.problem is None:
         raise InputError(
             "name the object: --object NAME|PROBLEM.npz|MESH, or --problem"
@@ -518,10 +547,15 @@ def _simulate(args) -> int:
     if args.resume:
         _same_prior(sim.session, args.prior)
     try:
-        sim.run(sim.steps, progress=not args.quiet, stop_at=args.stop_at)
+        sim.run(
+            sim.steps,
+            progress=not args.quiet,
+            stop_at=args.stop_at,
+            verify=args.verify,
+        )
         fig = sim.figure()
         last = sim.curve[-1]
-        _print_stop(sim, args.stop_at)
+        _print_stop(sim, args.stop_at, args.verify)
         print(
             f"{sim.step} grasps, {sim.session.successes} successes, "
             f"{len(sim.session.grasps)} poses; bound p_lower = {last['p_lower']:.3f}, "

@@ -8,8 +8,9 @@ One request per line on stdin, one response per line on stdout, in order::
     {"id": 2, "cmd": "ask"}
     {"id": 3, "cmd": "tell", "success": true}   (optional "grasp": the asked id)
     {"id": 4, "cmd": "bound", "rho_min": 0.9}
-    {"id": 5, "cmd": "status"}
-    {"id": 6, "cmd": "quit"}
+    {"id": 5, "cmd": "verify", "rho_min": 0.9}   (optional "delta", default 0.05)
+    {"id": 6, "cmd": "status"}
+    {"id": 7, "cmd": "quit"}
 
 A depth image is ``{"npy": PATH}`` (a ``.npy`` file of metres) or inline
 ``{"b64": ..., "dtype": "float32" | "float64" | "uint16", "shape": [H, W],
@@ -31,7 +32,11 @@ carries the responses only.
 ``bound`` answers both stopping bounds: the paper's ``p_lower`` (and
 ``p_lower_attempted``) and ours ``p_lower_ours`` (:mod:`legs_jax.core.stopping`);
 with ``rho_min`` (the stopping threshold ρ_min) also ``stop`` (the paper's bound
-≥ ρ_min) and ``stop_ours`` (ours ≥ ρ_min: the signal to stop on).
+≥ ρ_min) and ``stop_ours`` (ours ≥ ρ_min: the signal to verify, or to stop on).
+``verify`` opens a verification phase (:mod:`legs_jax.core.verify`): the next asks
+give the frozen recommended grasps, and each tell's result carries
+``verification`` with its ``verdict``: ``certified`` (stop), ``refuted``
+(exploration resumes) or none yet.
 """
 
 from __future__ import annotations
@@ -44,6 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from legs_jax.errors import ConfigError
+from legs_jax.online import session as session_mod
 from legs_jax.online.errors import InputError, OrderError, StateError
 from legs_jax.online.session import Session
 
@@ -59,6 +65,7 @@ FIELDS = {
     "ask": (),
     "tell": ("success", "grasp"),
     "bound": ("rho_min",),
+    "verify": ("rho_min", "delta"),
     "status": (),
     "quit": (),
 }
@@ -146,13 +153,20 @@ def handle(session: Session, req) -> dict:
             result = session.tell(req["success"])
         elif cmd == "bound":
             result = session.bound(req.get("rho_min"))
+        elif cmd == "verify":
+            if "rho_min" not in req:
+                raise InputError('verify needs "rho_min", the threshold to certify')
+            result = session.verify(
+                req["rho_min"], req.get("delta", session_mod.DELTA_STOP)
+            )
         elif cmd == "status":
             result = session.status()
         elif cmd == "quit":
             result = {"bye": True}
         else:
             raise InputError(
-                f"unknown cmd {cmd!r}; one of observe, ask, tell, bound, status, quit"
+                f"unknown cmd {cmd!r}; one of observe, ask, tell, bound, verify, "
+                "status, quit"
             )
     except (InputError, OrderError, StateError, ConfigError) as e:
         return {

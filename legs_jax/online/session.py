@@ -38,6 +38,8 @@ from collections.abc import Callable, Mapping
 import numpy as np
 
 from legs_jax.core import keys as keys_mod
+from legs_jax.core import verify as verify_mod
+from legs_jax.core.constants import DELTA_STOP
 from legs_jax.online import recognition as rec_mod
 from legs_jax.online import sampler as sampler_mod
 from legs_jax.online._adapter import Loop, check_hparams, default_method
@@ -110,6 +112,12 @@ class Session:
         self.pose_successes = np.zeros(self.max_poses, np.int64)
         self._warned: set = set()
         self._warnings: list[str] = []
+        # verified stopping (legs_jax.core.verify): the run's test, its last
+        # outcome and, once it certified, the stop
+        self.verification: verify_mod.Verification | None = None
+        self._verdict: str | None = None
+        self._phase_start = 0
+        self.stopped: dict | None = None
         for r in store.records:
             self._apply(r, replay=True)
 
@@ -257,15 +265,48 @@ class Session:
             self.pose = s
             self.transform = np.asarray(r["transform"], np.float64).reshape(4, 4)
             self._pending = None
+        elif kind == "verify":
+            rho, delta = float(r["rho_min"]), float(r["delta"])
+            if self.verification is None:
+                self.verification = verify_mod.Verification(rho, delta)
+            self.verification.start()
+            self._verdict = None
+            self._phase_start = self.step
         elif kind == "tell":
             self.step = int(r["step"])
-            self.loop.tell(
-                int(r["pose"]),
-                int(r["grasp"]),
-                int(r["slot"]),
-                bool(r["success"]),
-                self.step,
-            )
+            if r.get("verify"):
+                # an attempt of the frozen recommendations: it counts as a step
+                # and a landing, and goes to the test, not to the method
+                if not self.verifying:
+                    raise StateError(
+                        f"{self.store.folder}: the log has a verification attempt "
+                        "outside a verification phase"
+                    )
+                # Only an attempt right after a landing (a drop: the pose drawn
+                # from λ) is a sample of the recommendations' true performance;
+                # after a failure the object lies where it toppled, and those
+                # attempts count as steps but not in the test.
+                if self._landing_pose is not None:
+                    self._verdict = self.verification.record(bool(r["success"]))
+                else:
+                    self._verdict = None
+                if self._verdict == verify_mod.CERTIFIED:
+                    self.stopped = {
+                        "step": self.step,
+                        "rho_min": self.verification.rho,
+                        "phase": self.verification.phase,
+                        "attempts": self.verification.attempts,
+                        "successes": self.verification.successes,
+                        "phase_steps": self.step - self._phase_start,
+                    }
+            else:
+                self.loop.tell(
+                    int(r["pose"]),
+                    int(r["grasp"]),
+                    int(r["slot"]),
+                    bool(r["success"]),
+                    self.step,
+                )
             self.successes += bool(r["success"])
             self.attempts[int(r["pose"])] += 1
             self.pose_successes[int(r["pose"])] += bool(r["success"])
@@ -434,7 +475,16 @@ class Session:
                 "again"
             )
         t = self.step + 1
-        grasp, slot = self.loop.select(s, t)
+        testing = self.verifying
+        if testing:  # the frozen recommendation of this pose
+            grasp, slot = int(self.loop.recommendation()[s]), -1
+            if grasp < 0:
+                raise OrderError(
+                    f"pose {s} has no recommended grasp to verify: move the object "
+                    "and observe again"
+                )
+        else:
+            grasp, slot = self.loop.select(s, t)
         g = self.grasps[s]
         inv = np.linalg.inv(self.transform)  # pose frame -> table
         c_t = inv[:3, :3] @ np.asarray(g["center"][grasp], np.float64) + inv[:3, 3]
@@ -454,6 +504,8 @@ class Session:
             "depth": float(c_c[2]),
             "height": float(c_t[2]),
         }
+        if testing:
+            answer["verify"] = True
         self._pending = {"grasp": grasp, "slot": slot, "answer": answer}
         return answer
 
@@ -476,8 +528,70 @@ class Session:
             "slot": p["slot"],
             "success": bool(success),
         }
+        if p["answer"].get("verify"):
+            rec["verify"] = True
         self._apply(self.store.append(rec), replay=False)
-        return {"step": self.step, "successes": self.successes}
+        out = {"step": self.step, "successes": self.successes}
+        if rec.get("verify"):
+            out["verification"] = self.verification_state()
+        return out
+
+    # ------------------------------------------------------ verified stopping
+    @property
+    def verifying(self) -> bool:
+        """Whether a verification phase is open (asks give the frozen
+        recommendations)."""
+        return self.verification is not None and self.verification.active
+
+    def verify(self, rho_min: float, delta: float = DELTA_STOP) -> dict:
+        """Open a verification phase at threshold ``rho_min``
+        (:mod:`legs_jax.core.verify`): until the phase ends, ``ask`` gives the
+        recommended grasp of the observed pose (the recommendations are frozen:
+        the outcomes go to the test, not to the method) and each ``tell`` after
+        a landing (the object dropped, not toppled) adds an attempt to the test;
+        the others count as steps only. The phase ends ``certified`` (stop:
+        ``stopped`` holds the step) or ``refuted`` (exploration resumes; open
+        another phase when the bound reaches ``rho_min`` again). A run tests one
+        threshold: its phases share δ_stop = ``delta``. Calling it while a phase
+        is open, or after the stop, changes nothing."""
+        for name, v in (("rho_min", rho_min), ("delta", delta)):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < 1:
+                raise InputError(f"{name} must be a number in (0, 1), got {v!r}")
+        if self.verification is not None and (
+            self.verification.rho != float(rho_min)
+            or self.verification.delta != float(delta)
+        ):
+            raise InputError(
+                f"this run verifies rho_min = {self.verification.rho} at delta = "
+                f"{self.verification.delta}; its phases share that level, so it "
+                "cannot test another threshold (start a new session for one)"
+            )
+        if self.stopped is None and not self.verifying:
+            if self._pending is not None:
+                raise OrderError(
+                    "tell the outcome of the pending grasp before verifying"
+                )
+            rec = {"type": "verify", "rho_min": float(rho_min), "delta": float(delta)}
+            self._apply(self.store.append(rec), replay=False)
+        return self.verification_state()
+
+    def verification_state(self) -> dict | None:
+        """The run's verification: threshold, phase, its attempts and successes,
+        its level δ_j, whether it is open, the last phase's verdict, the stop."""
+        v = self.verification
+        if v is None:
+            return None
+        return {
+            "rho_min": v.rho,
+            "delta": v.delta,
+            "phase": v.phase,
+            "open": v.active,
+            "attempts": v.attempts,
+            "successes": v.successes,
+            "level": v.level,
+            "verdict": self._verdict,
+            "stopped": self.stopped,
+        }
 
     def bound(self, rho_min: float | None = None) -> dict:
         """The paper's Dirichlet lower bound p̂_ℓ at the current step, over all
@@ -518,6 +632,7 @@ class Session:
             "pose": self.pose,
             "counts": self.counts[:n].tolist(),
             "recommendation": self.loop.recommendation()[:n].tolist(),
+            "verification": self.verification_state(),
         }
 
     def recommended(self, s: int) -> dict | None:

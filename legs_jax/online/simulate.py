@@ -310,13 +310,22 @@ class Simulation:
         on_step=None,
         stop_at=None,
         warn: Callable[[str], None] | None = None,
+        verify: bool = False,
     ) -> None:
         """Run until the session has ``steps`` outcomes, or with ``stop_at`` (ρ_min)
         until an evaluation finds our bound ``p_lower_ours`` ≥ ρ_min (the row is
-        marked ``"stop": true`` and kept in ``self.stopped``). The session's
-        warnings (:meth:`Session.take_warnings`) go to ``warn``, by default to
-        stderr as lines beginning ``warning:``."""
+        marked ``"stop": true`` and kept in ``self.stopped``). With ``verify`` such
+        an evaluation opens a verification phase instead (:meth:`Session.verify`):
+        the robot tries the frozen recommendations, and the run stops where the
+        test certifies ρ_min (that step's row is marked ``"stop": true``) or goes
+        on exploring where it refutes it. The session's warnings
+        (:meth:`Session.take_warnings`) go to ``warn``, by default to stderr as
+        lines beginning ``warning:``."""
         _check_stop_at(stop_at)
+        if verify and stop_at is None:
+            raise InputError("verified stopping needs a threshold (stop_at)")
+        if verify and not 0.0 < stop_at < 1.0:
+            raise InputError(f"a verified threshold must be in (0, 1), got {stop_at}")
         bar = None
         if progress:
             from tqdm.auto import tqdm
@@ -339,9 +348,15 @@ class Simulation:
                     bar.write(f"warning: {w}", file=sys.stderr)
                 else:
                     print(f"warning: {w}", file=sys.stderr)
-            if self.step % self.eval_every == 0 or self.step == steps:
+            certified = verify and self.session.stopped is not None
+            if self.step % self.eval_every == 0 or self.step == steps or certified:
                 row = self.evaluate()
-                stop = stop_at is not None and row["p_lower_ours"] >= stop_at
+                reached = stop_at is not None and row["p_lower_ours"] >= stop_at
+                stop = certified or (reached and not verify)
+                if verify and row["p_lower_ours"] >= stop_at and not certified:
+                    self.session.verify(float(stop_at))
+                if verify:
+                    row["verification"] = self.session.verification_state()
                 if stop:
                     row.update(stop=True, rho_min=float(stop_at))
                     self.stopped = row
