@@ -586,7 +586,20 @@ def _stopping_on_ours(
             else "."
         )
         + _against_oracle(sens, oracle, bound)
+        + (_REPLAY_CAVEAT if bound == an.VERIFIED else "")
     ]
+
+
+# What the verified rows are: a replay on the recorded checks, with one cost
+# approximated (legs_jax.core.verify.simulate_stops).
+_REPLAY_CAVEAT = (
+    " Replayed on the recorded checks: the test's own attempts (one per landing) "
+    "are exact, but the attempts a failure leads to before the next landing are "
+    "counted as geometric at the recorded success rate, since the checks do not "
+    "record the toppled poses; where toppled poses are the harder ones this "
+    "undercounts them, so the stopping steps here are a lower estimate "
+    "([Stopping bounds](../docs/stopping.md))."
+)
 
 
 SECTIONS = ((40, _section),)
