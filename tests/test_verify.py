@@ -22,6 +22,18 @@ def _tol(p: float, n: int) -> float:
     return 3.0 * math.sqrt(p * (1.0 - p) / n)
 
 
+def _phases(tau, rho, runs, seed, budget=3000):
+    """``runs`` phases side by side at level δ_1, truth ``tau``: (attempts used,
+    outcome 1 certified / 2 refuted / 0 out of budget, successes)."""
+    return verify._phase(
+        np.full(runs, tau),
+        np.full(runs, budget),
+        np.full(runs, verify.spend(1, DELTA)),
+        rho,
+        np.random.default_rng(seed),
+    )
+
+
 @pytest.mark.parametrize(
     "k,n,rho", [(0, 1, 0.5), (9, 10, 0.8), (40, 50, 0.9), (3, 20, 0.3), (95, 100, 0.95)]
 )
@@ -78,13 +90,7 @@ def test_runs_below_the_threshold_stop_at_most_delta_of_the_time(rho, below):
 def test_a_single_phase_at_the_threshold_certifies_at_most_its_level():
     # One phase at level δ_1 = δ/2 with the truth at ρ and 1500 attempts.
     rho, runs = 0.7, 3000
-    used, how, _ = verify._phase(
-        np.full(runs, rho),
-        np.full(runs, 1500),
-        np.full(runs, verify.spend(1, DELTA)),
-        rho,
-        np.random.default_rng(2),
-    )
+    used, how, _ = _phases(rho, rho, runs, 2, budget=1500)
     rate = np.mean(how == 1)
     assert rate <= DELTA / 2 + _tol(DELTA / 2, runs), rate
     # and a truth at the threshold is refuted or runs out of budget otherwise
@@ -96,13 +102,7 @@ def test_good_recommendations_are_certified_fast():
     # the order of log(1/δ_1) / KL(τ || ρ) (a sequential probability ratio test
     # with the true alternative would need about that many).
     rho, tau, runs = 0.8, 0.9, 2000
-    used, how, _ = verify._phase(
-        np.full(runs, tau),
-        np.full(runs, 3000),
-        np.full(runs, verify.spend(1, DELTA)),
-        rho,
-        np.random.default_rng(3),
-    )
+    used, how, _ = _phases(tau, rho, runs, 3, budget=3000)
     kl = tau * math.log(tau / rho) + (1 - tau) * math.log((1 - tau) / (1 - rho))
     sprt = math.log(2 / DELTA) / kl
     assert np.mean(how == 1) >= 0.99
@@ -111,13 +111,7 @@ def test_good_recommendations_are_certified_fast():
 
 def test_poor_recommendations_are_refuted_not_tried_forever():
     rho, tau, runs = 0.8, 0.65, 2000
-    used, how, _ = verify._phase(
-        np.full(runs, tau),
-        np.full(runs, 3000),
-        np.full(runs, verify.spend(1, DELTA)),
-        rho,
-        np.random.default_rng(4),
-    )
+    used, how, _ = _phases(tau, rho, runs, 4, budget=3000)
     assert np.mean(how == 2) >= 0.99
     assert np.mean(how == 1) <= DELTA / 2 + _tol(DELTA / 2, runs)
     assert np.median(used) < 300

@@ -403,6 +403,37 @@ def bound_summary(checks: pd.DataFrame, by_object: bool = False) -> pd.DataFrame
     return pd.DataFrame(rows)
 
 
+def _checks_matrix(checks: pd.DataFrame, col: str):
+    """(bound [runs, checks], true performance [runs, checks], check steps) of
+    one bound column, runs in the order of ``_RUN_KEYS``."""
+    lo = checks.pivot_table(
+        index=_RUN_KEYS, columns="step", values=col, aggfunc="first"
+    )
+    tp = checks.pivot_table(
+        index=_RUN_KEYS, columns="step", values="true_performance", aggfunc="first"
+    ).reindex(index=lo.index, columns=lo.columns)
+    steps = lo.columns.to_numpy(np.int64)
+    return lo.to_numpy(np.float64), tp.to_numpy(np.float64), steps
+
+
+def _stop_row(
+    bound: str, rho: float, stopped, stop_step, truth, **extra
+) -> dict[str, Any]:
+    """One row of the stopping tables: ``truth`` [stopped runs] at their stop."""
+    n_runs, n_stop = len(stopped), int(np.sum(stopped))
+    return dict(
+        bound=bound,
+        rho_min=float(rho),
+        n_runs=n_runs,
+        n_stopped=n_stop,
+        frac_stopped=n_stop / n_runs if n_runs else float("nan"),
+        accuracy=float(np.mean(truth >= rho)) if n_stop else float("nan"),
+        mean_stop_step=float(np.mean(stop_step)),
+        se_stop_step=_se(stop_step),
+        **extra,
+    )
+
+
 # The stopping rule that tests before it stops (legs_jax.core.verify), on our bound.
 VERIFIED = "verified"
 
@@ -425,34 +456,21 @@ def verified_stopping(
     col = BOUNDS["ours"]
     if col not in checks.columns or not np.isfinite(checks[col].to_numpy(float)).any():
         raise AnalysisError("checks.parquet has no checks of our bound")
-    lo = checks.pivot_table(
-        index=_RUN_KEYS, columns="step", values=col, aggfunc="first"
-    )
-    tp = checks.pivot_table(
-        index=_RUN_KEYS, columns="step", values="true_performance", aggfunc="first"
-    ).reindex(index=lo.index, columns=lo.columns)
-    steps = lo.columns.to_numpy(np.int64)
-    L, V = lo.to_numpy(np.float64), tp.to_numpy(np.float64)
+    L, V, steps = _checks_matrix(checks, col)
     rows = []
     for rho in rho_min:
         rng = np.random.default_rng([seed, int(round(1000 * rho))])
         r = verify.simulate_stops(L, V, steps, float(rho), horizon, rng, delta)
         stopped = r["stopped"]
-        n_stop = int(stopped.sum())
         rows.append(
-            dict(
-                bound=VERIFIED,
-                rho_min=float(rho),
-                n_runs=len(L),
-                n_stopped=n_stop,
-                frac_stopped=n_stop / len(L) if len(L) else float("nan"),
-                accuracy=float(np.mean(r["truth"][stopped] >= rho))
-                if n_stop
-                else float("nan"),
-                mean_stop_step=float(r["stop_step"].mean()),
-                se_stop_step=_se(r["stop_step"]),
+            _stop_row(
+                VERIFIED,
+                rho,
+                stopped,
+                r["stop_step"],
+                r["truth"][stopped],
                 mean_attempts=float(r["attempts"].mean()),
-            )
+            )  # fmt: skip
         )
     return pd.DataFrame(rows)
 
@@ -474,34 +492,14 @@ def stopping_sensitivity(
         raise AnalysisError("checks.parquet has no Dirichlet checks")
     rows = []
     for name, col in cols.items():
-        lo = checks.pivot_table(
-            index=_RUN_KEYS, columns="step", values=col, aggfunc="first"
-        )
-        tp = checks.pivot_table(
-            index=_RUN_KEYS, columns="step", values="true_performance", aggfunc="first"
-        ).reindex(index=lo.index, columns=lo.columns)
-        steps = lo.columns.to_numpy(np.int64)
-        L = lo.to_numpy(np.float64)  # [runs, checks]
-        V = tp.to_numpy(np.float64)
+        L, V, steps = _checks_matrix(checks, col)
         for rho in rho_min:
             hit = np.nan_to_num(L, nan=-np.inf) >= rho
             stopped = hit.any(axis=1)
             first = hit.argmax(axis=1)
             stop_step = np.where(stopped, steps[first], horizon).astype(np.float64)
             perf = V[np.arange(len(V)), first][stopped]
-            n_stop = int(stopped.sum())
-            rows.append(
-                dict(
-                    bound=name,
-                    rho_min=float(rho),
-                    n_runs=len(L),
-                    n_stopped=n_stop,
-                    frac_stopped=n_stop / len(L) if len(L) else float("nan"),
-                    accuracy=float(np.mean(perf >= rho)) if n_stop else float("nan"),
-                    mean_stop_step=float(stop_step.mean()),
-                    se_stop_step=_se(stop_step),
-                )
-            )
+            rows.append(_stop_row(name, rho, stopped, stop_step, perf))
     return pd.DataFrame(rows)
 
 
