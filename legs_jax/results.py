@@ -28,7 +28,10 @@ float64; k, n as int64; ``variant`` is "" for the default configuration):
   p_lower_attempted (over attempted grasps only), p_lower_eb (our bound, the
   Dirichlet bound on an empirical-Bayes posterior of the recommended grasps,
   legs_jax.core.stopping; NaN for methods without per-grasp counts),
-  true_performance.
+  true_performance, after_failure (mean attempts after a failed attempt at a
+  landing until the next success with the recommendations frozen: what verified
+  stopping spends between two samples of its test, legs_jax.core.verify; absent
+  from results made before it was recorded).
 - active_set: object, method, variant, grid_index, trial, rollout, step, pose,
   slot, grasp, robustness (filled slots of visited poses only).
 - grasps: object, trial, pose, grasp, landing, robustness, prior (trial 0).
@@ -324,6 +327,12 @@ def chunk_tables(result: Any, ctx: ChunkContext) -> dict[str, pd.DataFrame]:
         )
         cols["true_performance"] = (
             np.asarray(result.check_true_performance).reshape(-1).astype(np.float64)
+        )
+        after = getattr(result, "check_after_failure", None)
+        cols["after_failure"] = (
+            np.asarray(after).reshape(-1).astype(np.float64)
+            if after is not None
+            else np.full(m, np.nan)
         )
         cols["grid_index"] = ix["g"].astype(np.int64)
         tables["checks"] = _frame(cols, m)

@@ -208,3 +208,85 @@ def test_verified_rows_of_the_analysis():
     pd.testing.assert_frame_equal(
         sens, an.verified_stopping(checks, [0.5, 0.8, 0.95], horizon=1000)
     )
+
+
+# ------------------------------------------------- the engine's recorded cost
+
+
+def _tables(p, topple, landing):
+    from types import SimpleNamespace
+
+    import jax.numpy as jnp
+
+    return SimpleNamespace(
+        p=jnp.asarray(p, jnp.float32)[None],
+        topple_cdf=jnp.asarray(np.cumsum(topple, -1), jnp.float32)[None],
+        landing=jnp.asarray(landing, jnp.float32)[None],
+    )
+
+
+def test_attempts_after_a_failure_match_a_simulated_chain():
+    # Three poses; the recommended grasps succeed with 0.9, 0.4 and 0.7; a failure
+    # topples the object by the rows of T. Simulated directly: land (λ), fail,
+    # then count the attempts until a success.
+    import jax.numpy as jnp
+
+    from legs_jax.core import engine
+
+    p = np.array([[0.9, 0.2], [0.1, 0.4], [0.7, 0.0]])  # [P, K]
+    rec = np.array([0, 1, 0])
+    T = np.array([[0.6, 0.3, 0.1], [0.2, 0.5, 0.3], [0.0, 0.5, 0.5]])
+    lam = np.array([0.5, 0.3, 0.2])
+    got = float(
+        engine._after_failure(_tables(p, T, lam), jnp.array([0]), jnp.array([rec]))[0]
+    )
+    rng = np.random.default_rng(0)
+    ps = p[np.arange(3), rec]
+    counts = []
+    while len(counts) < 20000:
+        s = rng.choice(3, p=lam)
+        if rng.random() < ps[s]:
+            continue  # a success at the landing: no failure to count after
+        n = 0
+        while True:
+            s = rng.choice(3, p=T[s])
+            n += 1
+            if rng.random() < ps[s]:
+                break
+        counts.append(n)
+    counts = np.asarray(counts)
+    se = counts.std() / math.sqrt(len(counts))
+    assert got == pytest.approx(counts.mean(), abs=4 * se)
+
+
+def test_attempts_after_a_failure_edge_cases():
+    import jax.numpy as jnp
+
+    from legs_jax.core import engine
+
+    T = np.array([[0.0, 1.0], [0.0, 1.0]])
+    # every frozen grasp succeeds: no failure, nothing after one
+    sure = _tables([[1.0], [1.0]], T, [0.5, 0.5])
+    assert (
+        float(engine._after_failure(sure, jnp.array([0]), jnp.array([[0, 0]]))[0]) == 0
+    )
+    # a failure leads to a pose that is never left (p = 0, topples onto itself)
+    stuck = _tables([[0.5], [0.0]], T, [1.0, 0.0])
+    out = engine._after_failure(stuck, jnp.array([0]), jnp.array([[0, 0]]))
+    assert np.isinf(float(out[0]))
+
+
+def test_replay_uses_the_recorded_attempts_after_a_failure():
+    runs = 300
+    steps = np.array([100])
+    after = np.full((runs, 1), 2.5)
+    out = verify.simulate_stops(
+        _always(runs, 1, 0.9), _always(runs, 1, 0.8), steps, 0.6, 3000,
+        np.random.default_rng(7), after=after,
+    )  # fmt: skip
+    used, how, wins = _phases(0.8, 0.6, runs, 7, budget=2900)
+    ok = how == 1
+    assert out["stopped"].tolist() == ok.tolist()
+    np.testing.assert_allclose(
+        out["stop_step"][ok], 100 + used[ok] + 2.5 * (used - wins)[ok]
+    )

@@ -586,12 +586,20 @@ def _stopping_on_ours(
             else "."
         )
         + _against_oracle(sens, oracle, bound)
-        + (_REPLAY_CAVEAT if bound == an.VERIFIED else "")
+        + (_REPLAY_CAVEAT if _approximated(o) else "")
     ]
 
 
-# What the verified rows are: a replay on the recorded checks, with one cost
-# approximated (legs_jax.core.verify.simulate_stops).
+def _approximated(rows: pd.DataFrame) -> bool:
+    """Whether verified rows counted some attempts after failures approximately
+    (checks made before the engine recorded their mean)."""
+    if rows.empty or "after_recorded" not in rows.columns:
+        return False
+    return bool((rows["after_recorded"].fillna(1.0) < 1.0).any())
+
+
+# What the verified rows are where the checks do not record the attempts after a
+# failure: a replay with that cost approximated (legs_jax.core.verify).
 _REPLAY_CAVEAT = (
     " Replayed on the recorded checks: the test's own attempts (one per landing) "
     "are exact, but the attempts a failure leads to before the next landing are "

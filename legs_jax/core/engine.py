@@ -161,6 +161,46 @@ def _performance(tables: Tables, ot: jax.Array, rec: jax.Array) -> jax.Array:
     return _pose_sum(tables.landing[ot] * p)
 
 
+_DOUBLINGS = 16  # terms 2^16 of the series of :func:`_after_failure`
+
+
+def _after_failure(tables: Tables, ot: jax.Array, rec: jax.Array) -> jax.Array:
+    """Mean attempts after a failed attempt at a landing until the next success,
+    with the recommendations ``rec`` frozen (what verified stopping spends
+    between two samples of its test; :mod:`legs_jax.core.verify`) per row [B].
+
+    From pose s a frozen attempt succeeds with p_s = p[s, π(s)] (0 where π(s) =
+    -1); a failure topples the object to t ~ topple[s]. The attempts until a
+    success from s solve h = 1 + (1 - p) ⊙ (topple h), and a failure at a
+    landing (pose ~ λ, weight λ_s (1 - p_s)) is followed by Σ_t topple[s, t] h_t
+    of them. Infinite where a pose can never be left with a success; 0 where no
+    attempt fails."""
+    P = rec.shape[1]
+    p = tables.p[ot[:, None], jnp.arange(P)[None, :], jnp.maximum(rec, 0)]
+    p = jnp.where(rec >= 0, p, 0.0)
+    cdf = tables.topple_cdf[ot]  # [B, P, P]
+    topple = jnp.diff(cdf, axis=-1, prepend=jnp.zeros_like(cdf[..., :1]))
+    # h = Σ_k M^k 1 with M = diag(1 - p) topple, summed by doubling (n terms ->
+    # 2n: h += M^n h, M^n -> M^2n): 2^16 terms in 16 small matrix products, and no
+    # linear solver (whose library call a program kept on disk may not find). A
+    # pose whose chain has not died out by then (success rates below about 2e-4
+    # wherever it topples) counts as never left.
+    # Products as sums over poses in order (:func:`_pose_sum`), so that padded
+    # poses change no bit.
+    m = (1.0 - p)[..., None] * topple
+    h = jnp.ones(p.shape, jnp.float32)
+    for _ in range(_DOUBLINGS):
+        h = h + _pose_sum(m * h[:, None, :])
+        m = _pose_sum(m[:, :, None, :] * jnp.swapaxes(m, 1, 2)[:, None, :, :])
+    h = jnp.where(jnp.max(m, axis=2) < 1e-6, h, jnp.inf)  # inf: never left
+    after = jnp.sum(jnp.where(topple > 0, topple * h[:, None, :], 0.0), axis=2)
+    fail = tables.landing[ot] * (1.0 - p)
+    total = _pose_sum(fail)
+    mean = _pose_sum(fail * after) / jnp.where(total > 0, total, 1.0)
+    mean = jnp.where(jnp.isfinite(mean) & (mean >= 0), mean, jnp.inf)
+    return jnp.where(total > 0, mean, 0.0)
+
+
 def _gap(tables: Tables, ot: jax.Array, rec: jax.Array) -> jax.Array:
     total = _pose_sum(tables.landing[ot] * tables.p_star[ot])
     return total - _performance(tables, ot, rec)
@@ -488,7 +528,8 @@ def simulate(
       ``final_performance``, ``successes``, ``distinct_grasps``, ``replacements``
       [B], and when checks run ``check_p_lower``, ``check_p_lower_attempted``,
       ``check_p_lower_eb`` (our bound, with ``our_bound``),
-      ``check_true_performance`` [B, C2]
+      ``check_true_performance`` and ``check_after_failure`` (what verified
+      stopping spends after a failure, :func:`_after_failure`) [B, C2]
       (and ``active_set`` [B, C2, P, k]).
     """
     m = method
@@ -585,6 +626,7 @@ def simulate(
             check_observed=c.observed,
             check_values=v_all.astype(jnp.float32),
             check_true_performance=_performance(tables, ot, c.rec),
+            check_after_failure=_after_failure(tables, ot, c.rec),
         )
         if attempted_variant:
             out["check_values_attempted"] = v_att.astype(jnp.float32)

@@ -136,6 +136,7 @@ def simulate_stops(
     horizon: int,
     rng: np.random.Generator,
     delta: float = 0.05,
+    after: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """Verified stopping replayed on recorded runs.
 
@@ -147,6 +148,11 @@ def simulate_stops(
       steps: [C] the exploration step of each check.
       rho, horizon, delta: the threshold, the step budget H, δ_stop.
       rng: draws the attempts' outcomes (Bernoulli(truth)).
+      after: [R, C] mean attempts after a failed attempt at a landing until the
+        next success, the recommendations frozen at that check (the engine's
+        ``check_after_failure``); NaN or None where not recorded, where each
+        failure is followed by a geometric number at rate ``truth`` instead, an
+        approximation that undercounts when the toppled poses are harder.
     Returns:
       ``stopped`` [R] bool, ``stop_step`` [R] (the step of the last certifying
       attempt, exploration and every attempt counted; ``horizon`` where the run
@@ -166,14 +172,17 @@ def simulate_stops(
     stopped = np.zeros(R, bool)
     stop_step = np.full(R, float(horizon))
     at_stop = np.full(R, np.nan)
-    spent = np.zeros(R, np.int64)
+    spent = np.zeros(R, np.float64)
     phase = np.zeros(R, np.int64)
     over = np.zeros(R, bool)  # the budget ran out
+    known_after = (
+        np.full(trig.shape, np.nan) if after is None else np.asarray(after, np.float64)
+    )
     for c in range(C):
         rows = np.flatnonzero(~stopped & ~over & (trig[:, c] >= rho))
         if rows.size == 0:
             continue
-        left = horizon - steps[c] - spent[rows]
+        left = np.floor(horizon - steps[c] - spent[rows]).astype(np.int64)
         ok = left > 0
         over[rows[~ok]] = True
         rows, left = rows[ok], left[ok]
@@ -183,16 +192,17 @@ def simulate_stops(
         tau = tru[rows, c]
         first, how, wins = _phase(tau, left, spend(phase[rows], delta), rho, rng)
         # After a failed attempt the object lies where it toppled, and the robot
-        # tries again until a success drops it (those attempts are steps, not
-        # samples of the test): about a geometric number of attempts each,
-        # counted at the success rate tau.
+        # tries again until a success drops it: those attempts are steps, not
+        # samples of the test. Their mean where the run recorded it, else a
+        # geometric number at the success rate tau (an approximation).
         fails = first - wins
-        p_next = np.clip(tau, 1e-6, 1.0)
-        used = (
-            first
-            + fails
-            + rng.negative_binomial(np.maximum(fails, 1), p_next) * (fails > 0)
-        )
+        guess = fails + rng.negative_binomial(
+            np.maximum(fails, 1), np.clip(tau, 1e-6, 1.0)
+        ) * (fails > 0)
+        known = known_after[rows, c]
+        with np.errstate(invalid="ignore"):
+            exact = np.where(fails > 0, fails * known, 0.0)
+        used = first + np.where(np.isnan(known), guess, exact)
         win = (how == 1) & (used <= left)
         stopped[rows[win]] = True
         stop_step[rows[win]] = steps[c] + spent[rows[win]] + used[win]

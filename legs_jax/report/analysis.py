@@ -457,10 +457,29 @@ def verified_stopping(
     if col not in checks.columns or not np.isfinite(checks[col].to_numpy(float)).any():
         raise AnalysisError("checks.parquet has no checks of our bound")
     L, V, steps = _checks_matrix(checks, col)
+    after, recorded = None, 0.0
+    if "after_failure" in checks.columns:
+        lo = checks.pivot_table(
+            index=_RUN_KEYS, columns="step", values=col, aggfunc="first"
+        )
+        after = (
+            checks.pivot_table(
+                index=_RUN_KEYS,
+                columns="step",
+                values="after_failure",
+                aggfunc="first",
+                dropna=False,
+            )
+            .reindex(index=lo.index, columns=lo.columns)
+            .to_numpy(np.float64)
+        )
+        recorded = float(np.mean(~np.isnan(after)))
     rows = []
     for rho in rho_min:
         rng = np.random.default_rng([seed, int(round(1000 * rho))])
-        r = verify.simulate_stops(L, V, steps, float(rho), horizon, rng, delta)
+        r = verify.simulate_stops(
+            L, V, steps, float(rho), horizon, rng, delta, after=after
+        )
         stopped = r["stopped"]
         rows.append(
             _stop_row(
@@ -470,7 +489,8 @@ def verified_stopping(
                 r["stop_step"],
                 r["truth"][stopped],
                 mean_attempts=float(r["attempts"].mean()),
-            )  # fmt: skip
+                after_recorded=recorded,
+            )
         )
     return pd.DataFrame(rows)
 

@@ -69,6 +69,9 @@ class RunResult(NamedTuple):
     # [G, O, T, R, C2] f32 our bound (legs_jax.core.stopping); NaN for a method
     # without per-grasp counts
     check_p_lower_eb: np.ndarray | None = None
+    # [G, O, T, R, C2] f32 mean attempts after a failed attempt at a landing until
+    # the next success, the recommendations frozen (verified stopping's cost)
+    check_after_failure: np.ndarray | None = None
 
 
 def _is_int(x: Any) -> bool:
@@ -504,6 +507,7 @@ def run(
             get("active_set", np.int32, (C2, P, width)) if record_active_set else None
         ),
         check_p_lower_eb=get("check_p_lower_eb", np.float32, (C2,), np.nan),
+        check_after_failure=get("check_after_failure", np.float32, (C2,), np.nan),
     )
 
 
