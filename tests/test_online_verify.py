@@ -146,6 +146,7 @@ def test_simulate_refuses_verify_without_a_threshold(tmp_path, capsys):
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
 
 
+@pytest.mark.slow  # a simulated run of its own (compiles the session's programs)
 def test_a_simulated_robot_stops_where_the_test_certifies(tmp_path, capsys):
     from legs_jax.online import cli
 

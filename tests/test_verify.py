@@ -242,19 +242,18 @@ def test_attempts_after_a_failure_match_a_simulated_chain():
     )
     rng = np.random.default_rng(0)
     ps = p[np.arange(3), rec]
-    counts = []
-    while len(counts) < 20000:
-        s = rng.choice(3, p=lam)
-        if rng.random() < ps[s]:
-            continue  # a success at the landing: no failure to count after
-        n = 0
-        while True:
-            s = rng.choice(3, p=T[s])
-            n += 1
-            if rng.random() < ps[s]:
-                break
-        counts.append(n)
-    counts = np.asarray(counts)
+    n = 200_000  # landings, simulated side by side
+    s = rng.choice(3, size=n, p=lam)
+    failed = rng.random(n) >= ps[s]
+    s = s[failed]  # a failure at the landing: count the attempts after it
+    counts = np.zeros(s.size, np.int64)
+    live = np.ones(s.size, bool)
+    cum = np.cumsum(T, axis=1)
+    while live.any():
+        i = np.flatnonzero(live)
+        s[i] = (rng.random(i.size)[:, None] > cum[s[i]]).sum(1)  # topple
+        counts[i] += 1
+        live[i] = rng.random(i.size) >= ps[s[i]]
     se = counts.std() / math.sqrt(len(counts))
     assert got == pytest.approx(counts.mean(), abs=4 * se)
 

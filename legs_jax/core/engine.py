@@ -180,6 +180,7 @@ def _after_failure(tables: Tables, ot: jax.Array, rec: jax.Array) -> jax.Array:
     p = jnp.where(rec >= 0, p, 0.0)
     cdf = tables.topple_cdf[ot]  # [B, P, P]
     topple = jnp.diff(cdf, axis=-1, prepend=jnp.zeros_like(cdf[..., :1]))
+
     # h = Σ_k M^k 1 with M = diag(1 - p) topple, summed by doubling (n terms ->
     # 2n: h += M^n h, M^n -> M^2n): 2^16 terms in 16 small matrix products, and no
     # linear solver (whose library call a program kept on disk may not find). A
@@ -187,11 +188,14 @@ def _after_failure(tables: Tables, ot: jax.Array, rec: jax.Array) -> jax.Array:
     # wherever it topples) counts as never left.
     # Products as sums over poses in order (:func:`_pose_sum`), so that padded
     # poses change no bit.
-    m = (1.0 - p)[..., None] * topple
-    h = jnp.ones(p.shape, jnp.float32)
-    for _ in range(_DOUBLINGS):
+    def double(_, hm):
+        h, m = hm
         h = h + _pose_sum(m * h[:, None, :])
         m = _pose_sum(m[:, :, None, :] * jnp.swapaxes(m, 1, 2)[:, None, :, :])
+        return h, m
+
+    m = (1.0 - p)[..., None] * topple
+    h, m = jax.lax.fori_loop(0, _DOUBLINGS, double, (jnp.ones(p.shape, jnp.float32), m))
     h = jnp.where(jnp.max(m, axis=2) < 1e-6, h, jnp.inf)  # inf: never left
     after = jnp.sum(jnp.where(topple > 0, topple * h[:, None, :], 0.0), axis=2)
     fail = tables.landing[ot] * (1.0 - p)
