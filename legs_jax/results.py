@@ -313,27 +313,18 @@ def chunk_tables(result: Any, ctx: ChunkContext) -> dict[str, pd.DataFrame]:
         cols.update(_hparam_columns(ctx, ix["g"]))
         cols["step"] = steps[ix["rest"][0]] if m else np.zeros(0, np.int64)
         cols["p_lower"] = p_lower.reshape(-1).astype(np.float64)
-        att = result.check_p_lower_attempted
-        cols["p_lower_attempted"] = (
-            np.asarray(att).reshape(-1).astype(np.float64)
-            if att is not None
-            else np.full(m, np.nan)
-        )
-        eb = getattr(result, "check_p_lower_eb", None)
-        cols["p_lower_eb"] = (
-            np.asarray(eb).reshape(-1).astype(np.float64)
-            if eb is not None
-            else np.full(m, np.nan)
-        )
-        cols["true_performance"] = (
-            np.asarray(result.check_true_performance).reshape(-1).astype(np.float64)
-        )
-        after = getattr(result, "check_after_failure", None)
-        cols["after_failure"] = (
-            np.asarray(after).reshape(-1).astype(np.float64)
-            if after is not None
-            else np.full(m, np.nan)
-        )
+
+        def column(field: str) -> np.ndarray:
+            """A check field flattened to float64, NaN where the run lacks it."""
+            x = getattr(result, field, None)
+            if x is None:
+                return np.full(m, np.nan)
+            return np.asarray(x).reshape(-1).astype(np.float64)
+
+        cols["p_lower_attempted"] = column("check_p_lower_attempted")
+        cols["p_lower_eb"] = column("check_p_lower_eb")
+        cols["true_performance"] = column("check_true_performance")
+        cols["after_failure"] = column("check_after_failure")
         cols["grid_index"] = ix["g"].astype(np.int64)
         tables["checks"] = _frame(cols, m)
 

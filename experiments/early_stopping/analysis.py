@@ -274,12 +274,15 @@ def early_stopping_figure(res: Results, out: Path) -> tuple[Path, dict[str, Any]
         axes[1].plot(g["rho_min"], g["mean_stop_step"], **kw)
         axes[2].plot(g["rho_min"], 100 * g["frac_stopped"], **kw)
     held_label = an.SET_LABELS.get(HELD_OUT_SET, HELD_OUT_SET)
-    for b, color, name in (
-        ("ours", "#2ca02c", "ours"),
-        (an.VERIFIED, "#9467bd", "verified"),
-    ):
-        if sens_held is None:  # ours on the other set, beside
-            break
+    beside = (
+        ()
+        if sens_held is None
+        else (  # ours on the other set, beside
+            ("ours", "#2ca02c", "ours"),
+            (an.VERIFIED, "#9467bd", "verified"),
+        )
+    )
+    for b, color, name in beside:
         g = sens_held[sens_held["bound"] == b]
         kw = dict(
             color=color, marker="v", ls=":", ms=4, lw=1.5,

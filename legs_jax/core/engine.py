@@ -151,14 +151,18 @@ def _pose_sum(x: jax.Array) -> jax.Array:
     return total
 
 
+def _rec_p(tables: Tables, ot: jax.Array, rec: jax.Array) -> jax.Array:
+    """p[s, π(s)] of each pose, 0 where π(s) = -1. rec [B, P] -> [B, P]."""
+    P = rec.shape[1]
+    p = tables.p[ot[:, None], jnp.arange(P)[None, :], jnp.maximum(rec, 0)]
+    return jnp.where(rec >= 0, p, 0.0)
+
+
 def _performance(tables: Tables, ot: jax.Array, rec: jax.Array) -> jax.Array:
     """Σ_s λ_s p[s, π(s)] per row, poses in order; π(s) = -1 adds 0.
 
     rec [B, P] -> [B]."""
-    P = rec.shape[1]
-    p = tables.p[ot[:, None], jnp.arange(P)[None, :], jnp.maximum(rec, 0)]
-    p = jnp.where(rec >= 0, p, 0.0)
-    return _pose_sum(tables.landing[ot] * p)
+    return _pose_sum(tables.landing[ot] * _rec_p(tables, ot, rec))
 
 
 _DOUBLINGS = 16  # terms 2^16 of the series of :func:`_after_failure`
@@ -175,9 +179,7 @@ def _after_failure(tables: Tables, ot: jax.Array, rec: jax.Array) -> jax.Array:
     landing (pose ~ λ, weight λ_s (1 - p_s)) is followed by Σ_t topple[s, t] h_t
     of them. Infinite where a pose can never be left with a success; 0 where no
     attempt fails."""
-    P = rec.shape[1]
-    p = tables.p[ot[:, None], jnp.arange(P)[None, :], jnp.maximum(rec, 0)]
-    p = jnp.where(rec >= 0, p, 0.0)
+    p = _rec_p(tables, ot, rec)
     cdf = tables.topple_cdf[ot]  # [B, P, P]
     topple = jnp.diff(cdf, axis=-1, prepend=jnp.zeros_like(cdf[..., :1]))
 

@@ -44,6 +44,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import betainc, betaln
 
+from legs_jax.core.constants import DELTA_STOP
+
 __all__ = [
     "CERTIFIED",
     "REFUTED",
@@ -93,7 +95,7 @@ class Verification:
     (the phase ends, exploration resumes) or None (attempt again)."""
 
     rho: float
-    delta: float = 0.05
+    delta: float = DELTA_STOP
     phase: int = 0
     successes: int = 0
     attempts: int = 0
@@ -113,14 +115,22 @@ class Verification:
             raise RuntimeError("no verification phase is open (call start() first)")
         self.attempts += 1
         self.successes += int(bool(success))
-        need = -math.log(self.level)
-        if log_evidence(self.successes, self.attempts, self.rho) >= need:
+        cert, gone = _decide(
+            self.successes, self.attempts, self.rho, -math.log(self.level)
+        )
+        if cert or gone:
             self.active = False
-            return CERTIFIED
-        if log_evidence(self.successes, self.attempts, self.rho, above=False) >= need:
-            self.active = False
-            return REFUTED
+            return CERTIFIED if cert else REFUTED
         return None
+
+
+def _decide(k, n, rho: float, need):
+    """(certified, refuted) after k successes in n attempts: each mixture ratio
+    against p = rho reaching ``need`` = log(1/δ_j) (arrays broadcast)."""
+    return (
+        log_evidence(k, n, rho) >= need,
+        log_evidence(k, n, rho, above=False) >= need,
+    )
 
 
 def _first(hit: np.ndarray) -> np.ndarray:
@@ -135,7 +145,7 @@ def simulate_stops(
     rho: float,
     horizon: int,
     rng: np.random.Generator,
-    delta: float = 0.05,
+    delta: float = DELTA_STOP,
     after: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """Verified stopping replayed on recorded runs.
@@ -233,8 +243,8 @@ def _phase(tau, left, level, rho, rng):
         kk = k[todo, None] + np.cumsum(x, axis=1)
         n = n0 + np.arange(1, _BLOCK + 1)[None, :]
         within = n <= left[todo, None]
-        cert = (log_evidence(kk, n, rho) >= need[todo, None]) & within
-        gone = (log_evidence(kk, n, rho, above=False) >= need[todo, None]) & within
+        cert, gone = _decide(kk, n, rho, need[todo, None])
+        cert, gone = cert & within, gone & within
         fc, fg = _first(cert), _first(gone)
         end_c = fc < np.minimum(fg, _BLOCK)
         end_g = ~end_c & (fg < _BLOCK)

@@ -353,7 +353,7 @@ class Simulation:
                 row = self.evaluate()
                 reached = stop_at is not None and row["p_lower_ours"] >= stop_at
                 stop = certified or (reached and not verify)
-                if verify and row["p_lower_ours"] >= stop_at and not certified:
+                if verify and reached and not certified:
                     self.session.verify(float(stop_at))
                 if verify:
                     row["verification"] = self.session.verification_state()

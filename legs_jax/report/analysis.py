@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 
 from legs_jax.core import verify
+from legs_jax.core.constants import DELTA_STOP
 from legs_jax.results import hparam_columns
 
 __all__ = [
@@ -403,17 +404,23 @@ def bound_summary(checks: pd.DataFrame, by_object: bool = False) -> pd.DataFrame
     return pd.DataFrame(rows)
 
 
-def _checks_matrix(checks: pd.DataFrame, col: str):
+def _checks_matrix(checks: pd.DataFrame, col: str, *more: str):
     """(bound [runs, checks], true performance [runs, checks], check steps) of
-    one bound column, runs in the order of ``_RUN_KEYS``."""
+    one bound column, runs in the order of ``_RUN_KEYS``; then a [runs, checks]
+    matrix of each of ``more`` in the same order (NaN where missing)."""
     lo = checks.pivot_table(
         index=_RUN_KEYS, columns="step", values=col, aggfunc="first"
     )
-    tp = checks.pivot_table(
-        index=_RUN_KEYS, columns="step", values="true_performance", aggfunc="first"
-    ).reindex(index=lo.index, columns=lo.columns)
+    aligned = [
+        checks.pivot_table(
+            index=_RUN_KEYS, columns="step", values=c, aggfunc="first", dropna=False
+        )
+        .reindex(index=lo.index, columns=lo.columns)
+        .to_numpy(np.float64)
+        for c in ("true_performance", *more)
+    ]
     steps = lo.columns.to_numpy(np.int64)
-    return lo.to_numpy(np.float64), tp.to_numpy(np.float64), steps
+    return lo.to_numpy(np.float64), aligned[0], steps, *aligned[1:]
 
 
 def _stop_row(
@@ -443,7 +450,7 @@ def verified_stopping(
     rho_min: Sequence[float],
     horizon: int,
     seed: int = 0,
-    delta: float = 0.05,
+    delta: float = DELTA_STOP,
 ) -> pd.DataFrame:
     """Verified stopping against the threshold rho_min, replayed on the runs'
     checks (:func:`legs_jax.core.verify.simulate_stops`): at a check where our
@@ -456,24 +463,12 @@ def verified_stopping(
     col = BOUNDS["ours"]
     if col not in checks.columns or not np.isfinite(checks[col].to_numpy(float)).any():
         raise AnalysisError("checks.parquet has no checks of our bound")
-    L, V, steps = _checks_matrix(checks, col)
     after, recorded = None, 0.0
     if "after_failure" in checks.columns:
-        lo = checks.pivot_table(
-            index=_RUN_KEYS, columns="step", values=col, aggfunc="first"
-        )
-        after = (
-            checks.pivot_table(
-                index=_RUN_KEYS,
-                columns="step",
-                values="after_failure",
-                aggfunc="first",
-                dropna=False,
-            )
-            .reindex(index=lo.index, columns=lo.columns)
-            .to_numpy(np.float64)
-        )
+        L, V, steps, after = _checks_matrix(checks, col, "after_failure")
         recorded = float(np.mean(~np.isnan(after)))
+    else:
+        L, V, steps = _checks_matrix(checks, col)
     rows = []
     for rho in rho_min:
         rng = np.random.default_rng([seed, int(round(1000 * rho))])
