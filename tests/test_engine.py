@@ -606,6 +606,7 @@ def test_the_paper_bound_alone_leaves_every_other_field_as_it_was():
     _same_but_our_bound(both, paper)
 
 
+@pytest.mark.slow  # an opt-in fit (eb_replicates); the default bound is tested above
 def test_the_bootstrap_of_our_bound_changes_only_our_bound():
     """``eb_replicates=R`` averages our bound's posterior over R bootstrap fits of
     G_s: only ``check_p_lower_eb`` moves (every other field, the paper's bound

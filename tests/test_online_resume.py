@@ -98,6 +98,8 @@ def _kill_resume(tmp_path, extra, steps, kill_after):
     return out, after
 
 
+# three command-line runs, about a minute; the in-process resume: test_online.py
+@pytest.mark.slow
 def test_sigkill_mid_run_then_resume_loses_nothing(tmp_path, clamp_problem):
     extra = ("--problem", str(clamp_problem), "--given-poses", "--seed", "2")
     steps = 200
