@@ -263,6 +263,7 @@ def test_table_shows_the_check_costs_it_is_given():
     )
 
 
+@pytest.mark.slow  # the quick benchmark above times them too
 def test_check_cost_bench_times_both_bounds_on_the_same_shapes():
     """A tiny run of the function-level comparison: both bounds timed, ours at
     least its own fit (it includes it)."""
