@@ -145,7 +145,7 @@ def _pose_sum(x: jax.Array) -> jax.Array:
     in the last bit (and did, on two host devices). A loop over the poses fixes
     the order (XLA may turn additions written out into a reduction of its own
     order); padded poses add +0.0 after every real one, which changes no bit.
-    x [B, P] -> [B]."""
+    x [..., P] -> [...]."""
     cols = jnp.moveaxis(x, -1, 0)
     total, _ = jax.lax.scan(lambda acc, c: (acc + c, None), cols[0], cols[1:])
     return total
@@ -199,7 +199,7 @@ def _after_failure(tables: Tables, ot: jax.Array, rec: jax.Array) -> jax.Array:
     m = (1.0 - p)[..., None] * topple
     h, m = jax.lax.fori_loop(0, _DOUBLINGS, double, (jnp.ones(p.shape, jnp.float32), m))
     h = jnp.where(jnp.max(m, axis=2) < 1e-6, h, jnp.inf)  # inf: never left
-    after = jnp.sum(jnp.where(topple > 0, topple * h[:, None, :], 0.0), axis=2)
+    after = _pose_sum(jnp.where(topple > 0, topple * h[:, None, :], 0.0))
     fail = tables.landing[ot] * (1.0 - p)
     total = _pose_sum(fail)
     mean = _pose_sum(fail * after) / jnp.where(total > 0, total, 1.0)
