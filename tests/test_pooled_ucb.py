@@ -1,12 +1,11 @@
-"""Pooled Bayes-UCB (ours): over the top 100 by prior (and the grasps already
-tried), a grasp's posterior adds the outcomes of its pose's other candidates as a
-pseudo-observation of their pooled success rate worth at most POOL_ATTEMPTS
-attempts; once the object's outcomes say that the prior ranks nothing (an
-empirical-Bayes fit whose best cell has b = 0), every grasp is a candidate and
-the posterior is the paper's. The choice is Bayes-UCB's on these posteriors and
-the recommendation their highest mean. The parity tests (tests/test_parity.py)
-compare the engine with the NumPy twin in distribution, as for every learning
-method."""
+"""Pooled Bayes-UCB (ours): over every valid grasp, a grasp's posterior adds the
+outcomes of its pose's other grasps as a pseudo-observation of their pooled
+success rate worth at most POOL_ATTEMPTS attempts; once the object's outcomes say
+that the prior ranks nothing (an empirical-Bayes fit whose best cell has b = 0),
+the posterior is the paper's, without the pool. The choice is Bayes-UCB's on
+these posteriors and the recommendation their highest mean. The parity tests
+(tests/test_parity.py) compare the engine with the NumPy twin in distribution, as
+for every learning method."""
 
 from __future__ import annotations
 
@@ -105,20 +104,14 @@ def test_the_prior_is_found_to_rank_nothing_only_where_it_does_not(seed):
     for p, flat in ((informative, False), (apart, True)):
         ll = _loglik_of(p, q, 5, rng)
         assert bool(pooled_ucb.ranks_nothing(ll[None], attempts)[0]) is flat
-    # no outcome yet: the paper's prior, over the top 100
+    # no outcome yet: the prior ranks (the pool, which is empty)
     zero = jnp.zeros((1, pooled_ucb.NUM_CELLS))
     assert not bool(pooled_ucb.ranks_nothing(zero, jnp.asarray([0]))[0])
 
 
 def _expected(st, ctx, i, si, wins, losses, flat):
     """SciPy's float64 view of row i at pose si: candidates, α', β'."""
-    K = st.inner.alpha.shape[-1]
-    valid = np.asarray(ctx.tables.valid[0, si])
-    order = np.asarray(ctx.tables.order[0, si])
-    top = np.zeros(K, bool)
-    top[order[:TOP_FIXED]] = True
-    tried = (wins[i, si] + losses[i, si]) > 0
-    cand = valid & (top | tried | flat)
+    cand = np.asarray(ctx.tables.valid[0, si])
     w, f = wins[i, si].astype(np.float64), losses[i, si].astype(np.float64)
     a = np.asarray(st.inner.alpha[i, si], np.float64)
     b = np.asarray(st.inner.beta[i, si], np.float64)
@@ -133,9 +126,9 @@ def _expected(st, ctx, i, si, wins, losses, flat):
 @pytest.mark.parametrize("flat", [False, True])
 def test_choice_and_recommendation_read_the_posteriors(flat):
     """From random reachable states: the choice is the highest 1 − 1/(t + 1)
-    quantile and the recommendation the highest mean of the posteriors, over
-    the top 100 and the tried grasps with the pool, or (the fit's best cell
-    having b = 0) over every grasp without it, computed here with SciPy."""
+    quantile and the recommendation the highest mean of the posteriors over
+    every valid grasp, with the pool, or (the fit's best cell having b = 0)
+    without it, computed here with SciPy."""
     m, ctx, cfg, st = _setup("pooled_ucb")
     rng = np.random.default_rng(0)
     n = st.inner.alpha.shape
@@ -170,8 +163,7 @@ def test_choice_and_recommendation_read_the_posteriors(flat):
         assert int(slot[i]) == int(grasp[i])
         checked += 1
     assert checked >= B // 2
-    # the candidate set: every valid grasp where the prior ranks nothing, else the
-    # top 100 and the tried grasps
+    # the candidate set: every valid grasp, whatever the fit says
     cand = np.asarray(m.candidates(st, ctx, cfg))
     for i in range(0, B, 7):
         for si in range(P):

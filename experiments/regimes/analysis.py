@@ -714,8 +714,8 @@ def ours_figure(s: Mapping[str, Any], path) -> Any:
 
 def _ours_lines(t: pd.DataFrame) -> list[str]:
     """Our method on every problem against the lowest other arm (the oracle
-    excluded) and against the method it builds on, Bayes-UCB (K=100)."""
-    base = "bayes_ucb_100"
+    excluded) and against the method it builds on, Bayes-UCB (K=2000)."""
+    base = "bayes_ucb_2000"
     vb = versus_best(t)
     if vb is None or f"gap_{base}" not in t:
         return []
@@ -729,7 +729,7 @@ def _ours_lines(t: pd.DataFrame) -> list[str]:
         f"- {_ours_label()}: above the lowest other arm by more "
         f"than {Z:g} SE on {len(worse)} of {len(t)} problems ({_names(list(worse))}"
         f"; the lowest there: {', '.join(why) or 'none'}); against Bayes-UCB "
-        f"(K=100), which it builds on, {fmt(float(dbase.mean()))} on average, "
+        f"(K=2000), which it builds on, {fmt(float(dbase.mean()))} on average, "
         f"lower by more than {Z:g} SE on {len(lower)} ({_names(list(lower))}) and "
         f"higher on {len(higher)} ({_names(list(higher))}).",
         "",
