@@ -1004,3 +1004,13 @@ def test_a_sweep_runs_from_python(tmp_path, probs, fake_engine):
         sweep.run(experiment=["main"], methods=["leg"])
     with pytest.raises(ConfigError, match="nothing to run"):
         sweep.run()
+
+
+def test_the_configuration_names_the_beta_sampler():
+    """A result's configuration (and with it the config hash, so chunk reuse)
+    names the Beta sampler of the Thompson methods' draws."""
+    from legs_jax.core import beta_sampler
+
+    cfg = _plan([_obj("a", 4, 200)], [("legs", "", {})]).config()
+    assert cfg["beta_sampler"] == beta_sampler.SAMPLER_VERSION
+    assert cfg["beta_sampler"] != beta_sampler.PREVIOUS_SAMPLER_VERSION

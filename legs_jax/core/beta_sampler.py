@@ -72,19 +72,12 @@ On CPU, XLA contracts products and sums into fused multiply-adds fusion by fusio
 so a change of the retry's program can move the bulk pass's last bits: a change
 must be compared bit for bit with the jitted sampler before it.
 
-Switching the engine to this sampler (a later change; it changes every random
-stream of the Thompson methods, so every experiment must be rerun):
-
-- ``legs_jax/core/methods/base.py``, ``thompson_draw``:
-  ``phi = sampling.beta_rows(key, a, b)`` becomes
-  ``phi = beta_sampler.beta_rows_v2(key, a, b)``;
-- ``legs_jax/core/methods/_slots.py``, ``select``: the same change in
-  ``phi = sampling.beta_rows(key, jnp.where(mask, a, 1.0), ...)``;
-  (each file also imports ``from legs_jax.core import beta_sampler``);
-- the sweep's manifests should record the sampler: ``ExperimentPlan.config()``
-  (``legs_jax/sweep/plan.py``) gains ``"beta_sampler": SAMPLER_VERSION`` (so the
-  config hash, and with it chunk reuse, changes) and ``RESULTS_VERSION`` goes up
-  by one; results made before the switch used :data:`PREVIOUS_SAMPLER_VERSION`.
+The engine's Thompson methods (LEGS, BORGES:
+:func:`legs_jax.core.methods.base.thompson_draw` and the slot methods' ``select``)
+draw with this sampler. The sweep's manifests name it
+(``"beta_sampler"`` in their configuration, :data:`SAMPLER_VERSION`); results whose
+manifests name none were made with :func:`legs_jax.core.sampling.beta_rows`
+(:data:`PREVIOUS_SAMPLER_VERSION`), which stays for comparison and the benchmark.
 """
 
 from __future__ import annotations
@@ -94,6 +87,10 @@ import math
 import jax
 import jax.numpy as jnp
 
+from legs_jax.core.sampler_versions import (  # noqa: F401 - re-exported
+    PREVIOUS_SAMPLER_VERSION,
+    SAMPLER_VERSION,
+)
 from legs_jax.core.sampling import (
     _beta_inputs,
     _finish_pending,
@@ -102,11 +99,6 @@ from legs_jax.core.sampling import (
 
 __all__ = ["PREVIOUS_SAMPLER_VERSION", "SAMPLER_VERSION", "beta_rows_v2"]
 
-# What manifests record as the Beta sampler of a run.
-SAMPLER_VERSION = "cheng-ba-1"
-# The sampler before it: legs_jax.core.sampling.beta_rows (Ga / (Ga + Gb) with
-# Marsaglia-Tsang gammas, a Box-Muller pair for try 0, erf_inv normals after).
-PREVIOUS_SAMPLER_VERSION = "marsaglia-tsang-ratio-1"
 
 # Counter stream of this sampler: the high byte of the second counter word (the
 # streams of legs_jax.core.sampling use 0-7); the try number fills the low 24 bits.

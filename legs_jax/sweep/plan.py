@@ -15,9 +15,13 @@ from typing import Any
 import numpy as np
 
 from legs_jax import results as res
+from legs_jax.core.sampler_versions import SAMPLER_VERSION
 from legs_jax.errors import ConfigError
 
-RESULTS_VERSION = 2  # 2: checks carry p_lower_eb (our stopping bound)
+# 2: checks carry p_lower_eb (our stopping bound); 3: checks carry after_failure
+# (what verified stopping spends after a failed attempt) and the Thompson methods
+# draw with Cheng's Beta sampler (the configuration names it)
+RESULTS_VERSION = 3
 
 # Sizes of --smoke: synthetic problems named like the real objects.
 SMOKE = dict(
@@ -126,6 +130,7 @@ class ExperimentPlan:
         """Everything the results depend on (not devices, hosts or chunking)."""
         return {
             "results_version": RESULTS_VERSION,
+            "beta_sampler": SAMPLER_VERSION,
             "experiment": self.name,
             "smoke": self.smoke,
             "objects": [

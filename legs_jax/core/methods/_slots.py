@@ -12,7 +12,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from legs_jax.core import sampling
+from legs_jax.core import beta_sampler
 from legs_jax.core.methods._dense import update  # the same Beta update, per slot
 from legs_jax.core.methods.base import (
     Config,
@@ -55,7 +55,9 @@ def select(st: SlotState, ctx: Ctx, cfg: Config, s, key):
     b = gather_at(st.beta, s)
     gid = gather_at(st.gid, s)
     mask = gid >= 0
-    phi = sampling.beta_rows(key, jnp.where(mask, a, 1.0), jnp.where(mask, b, 1.0))
+    phi = beta_sampler.beta_rows_v2(
+        key, jnp.where(mask, a, 1.0), jnp.where(mask, b, 1.0)
+    )
     grasp = argmin_id_of_max(phi, mask, gid, none=0)  # ties: lowest grasp id
     slot = jnp.argmax(gid == grasp[:, None], axis=-1).astype(jnp.int32)
     return grasp, slot, (a, b, gid)

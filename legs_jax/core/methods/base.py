@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from legs_jax.core import sampling
+from legs_jax.core import beta_sampler, sampling
 from legs_jax.core.constants import Q_CLIP, TOP_FIXED
 from legs_jax.errors import ConfigError
 
@@ -475,7 +475,7 @@ def thompson_draw(
     """
     a = jnp.where(mask, alpha, 1.0)
     b = jnp.where(mask, beta, 1.0)
-    phi = sampling.beta_rows(key, a, b)
+    phi = beta_sampler.beta_rows_v2(key, a, b)
     return argmax_first(jnp.where(mask, phi, -1.0))
 
 
