@@ -243,12 +243,13 @@ class Reference(ucb.Reference):
         self._sync()
 
     def _sync(self) -> None:
-        """The candidate set after an update (the twin's loop reads ``cand``)."""
+        """The test of the prior after an update (``flat``: no pool). The
+        candidates are every valid grasp throughout (``cand``, set with
+        ``top=None``)."""
         n = max(self.count.sum(), 1)
         pen = np.where(np.arange(NUM_CELLS) == 0, 0.0, PENALTY * np.log(n))
         best = int(np.argmax(self.loglik - pen))
         self.flat = best > 0 and CELLS[best - 1, 1] == 0.0
-        self.cand = self.valid
 
     def update(self, s: int, a: int, r: bool) -> None:
         qc = float(np.clip(self.q[s, a], *Q_CLIP))
