@@ -61,7 +61,7 @@ def _plot_ours(ax, curve) -> None:
             ax.axvline(r["step"], color="k", lw=1.0, alpha=0.6)
             ax.annotate(
                 f"stop: bound {r['p_lower_ours']:.2f} ≥ ρ_min {r['rho_min']:.2f},"
-                f" true {r['performance']:.2f}",
+                f" success rate {r['performance']:.2f}",
                 (r["step"], 0.04),
                 fontsize=7,
                 ha="right",
@@ -388,7 +388,11 @@ class Simulation:
         ax.plot(
             steps,
             [r["performance"] for r in self.curve],
-            label="true success rate of π_t",
+            label=(
+                "true success rate of π_t"
+                if self.given
+                else f"success rate of π_t (estimated, {EVAL_SAMPLES} executions)"
+            ),
             **mark,
         )
         if self.curve and "gap" in self.curve[0]:
