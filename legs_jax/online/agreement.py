@@ -22,6 +22,7 @@ observed reservoirs (the gap then uses estimated p, see
 
 from __future__ import annotations
 
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -163,6 +164,13 @@ def _ignore(_warning: str) -> None:
     pass
 
 
+def _where() -> str:
+    from legs_jax._machine import machine
+
+    m = machine()
+    return f"{m['cpu']}, {m['isa']}"
+
+
 def _fmt(x) -> str:
     return f"{x:.3f}"
 
@@ -207,7 +215,15 @@ def main(args) -> int:
     lines = [
         f"# The online loop against the batched engine: {pb.name}, {args.method}",
         "",
-        "Regenerate: `python -m legs_jax.online agreement --problem PROBLEM "
+        "Regenerate: "
+        + (
+            f"`python -m precompute --object {SHIPPED['object']} --trials "
+            f"{SHIPPED['trials']} --grasps {SHIPPED['grasps']}` (a reduced build), "
+            "then "
+            if shipped
+            else ""
+        )
+        + f"`python -m legs_jax.online agreement --problem {args.problem} "
         f"--method {args.method} --rollouts {args.rollouts} --engine-rollouts "
         f"{args.engine_rollouts} --horizon {args.horizon} --every {args.every} "
         f"--recognition-rollouts {args.recognition_rollouts}`.",
@@ -240,7 +256,8 @@ def main(args) -> int:
         "",
         f"Time per simulated step (given poses; ask, tell with its fsync, the "
         f"physics): median {1000 * np.median(on['seconds_per_step']):.1f} ms. "
-        f"Engine: {t_eng:.1f} s for all its rollouts, compile included.",
+        f"Engine: {t_eng:.1f} s for all its rollouts, compile included. "
+        f"Wall times, measured on {_where()} ({os.cpu_count()} CPUs).",
     ]
     if rec is not None:
         lines += [
@@ -264,6 +281,11 @@ def main(args) -> int:
                 f"| {s} | {_fmt(rec['gap'][:, i].mean())} | {_fmt(c['online'][i])} |"
             )
         lines += [
+            "",
+            "The recognition rows are not an agreement check: their reservoirs are "
+            "other grasps (sampled on the images) ranked by the prior's scores on "
+            "those images, so their gap, measured against the best grasp of the "
+            "problem's own reservoir, can fall lower than the engine's, even below 0.",
             "",
             "Cost of recognition: median "
             f"{1000 * np.median(rec['seconds_per_step']):.0f} ms a step (rendering "
