@@ -59,3 +59,49 @@ def test_a_wrong_world_is_caught(clamp):
     on = A.online_curves(shifted, method="legs", rollouts=6, horizon=100, every=25)
     eng = A.engine_curves(clamp, method="legs", rollouts=400, horizon=100, every=25)
     assert not A.compare(on, eng)["agree"]
+
+
+def test_the_regenerate_line_is_the_command_that_made_the_table():
+    """The table's Regenerate line names the problem path as given and every
+    argument; the shipped table's also names the reduced build that makes the
+    problem file, so that the line reproduces it in a fresh clone."""
+    from argparse import Namespace
+
+    args = Namespace(
+        problem="data/problems/dexnet_adv/bar_clamp.npz",
+        method="legs",
+        rollouts=24,
+        engine_rollouts=500,
+        horizon=400,
+        every=50,
+        recognition_rollouts=2,
+    )
+    line = A.regenerate_line(args, shipped=True)
+    assert line.startswith(
+        "Regenerate: `python -m precompute --object bar_clamp --trials 2 --grasps 1000`"
+    )
+    assert (
+        "`python -m legs_jax.online agreement --problem "
+        "data/problems/dexnet_adv/bar_clamp.npz --method legs --rollouts 24 "
+        "--engine-rollouts 500 --horizon 400 --every 50 --recognition-rollouts 2`"
+    ) in line
+    args.problem = "mine.npz"
+    other = A.regenerate_line(args, shipped=False)
+    assert "precompute" not in other and "--problem mine.npz " in other
+
+
+def test_the_shipped_tables_regenerate_line_matches_its_configuration():
+    """The committed table's Regenerate line is the one the command writes for
+    the shipped configuration (:data:`SHIPPED`)."""
+    from argparse import Namespace
+    from pathlib import Path
+
+    shipped = Path(__file__).parents[1] / "results" / "online" / "agreement.md"
+    line = next(
+        x for x in shipped.read_text().splitlines() if x.startswith("Regenerate:")
+    )
+    cfg = {
+        k: v for k, v in A.SHIPPED.items() if k not in ("object", "trials", "grasps")
+    }
+    args = Namespace(problem="data/problems/dexnet_adv/bar_clamp.npz", **cfg)
+    assert line == A.regenerate_line(args, shipped=True)

@@ -150,6 +150,8 @@ def test_a_catalogue_object_runs_on_the_shipped_problem(tmp_path, monkeypatch, c
     assert cli.main([*args, "--out", str(tmp_path / "a")]) == 0, capsys.readouterr()
     out = capsys.readouterr().out
     assert "20 grasps" in out and "gap" in out  # the shipped file's p* gives a gap
+    # the pose given, the success rate is the problem's own p: exact, and said so
+    assert "true success rate of the recommendations" in out
     curve = _curve(tmp_path / "a")
     assert [r["step"] for r in curve] == [0, 10, 20]
     assert all(0 <= r["performance"] <= 1 for r in curve)
@@ -157,3 +159,16 @@ def test_a_catalogue_object_runs_on_the_shipped_problem(tmp_path, monkeypatch, c
     err = capsys.readouterr().err
     assert rc == 2 and "trial 3" in err and "precompute --objects bar_clamp" in err
     assert "Traceback" not in err and not (tmp_path / "b").exists()
+
+
+def test_the_success_rate_is_called_an_estimate_in_full_perception():
+    """Without the true pose the curve's success rate is estimated from
+    EVAL_SAMPLES perturbed executions of each pose's recommended grasp, and the
+    printed lines say so; with the pose given it is the problem's exact p."""
+    from types import SimpleNamespace
+
+    assert cli._rate(SimpleNamespace(given=True)) == (
+        "true success rate of the recommendations"
+    )
+    said = cli._rate(SimpleNamespace(given=False))
+    assert "true" not in said and f"estimated from {sim_mod.EVAL_SAMPLES}" in said

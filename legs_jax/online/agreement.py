@@ -164,6 +164,23 @@ def _ignore(_warning: str) -> None:
     pass
 
 
+def regenerate_line(args, shipped: bool) -> str:
+    """The table's "Regenerate" line: the command that made it, with the problem
+    path as given, preceded by the reduced build for the shipped table."""
+    build = (
+        f"`python -m precompute --object {SHIPPED['object']} --trials "
+        f"{SHIPPED['trials']} --grasps {SHIPPED['grasps']}` (a reduced build), then "
+        if shipped
+        else ""
+    )
+    return (
+        f"Regenerate: {build}`python -m legs_jax.online agreement --problem "
+        f"{args.problem} --method {args.method} --rollouts {args.rollouts} "
+        f"--engine-rollouts {args.engine_rollouts} --horizon {args.horizon} "
+        f"--every {args.every} --recognition-rollouts {args.recognition_rollouts}`."
+    )
+
+
 def _where() -> str:
     from legs_jax._machine import machine
 
@@ -215,18 +232,7 @@ def main(args) -> int:
     lines = [
         f"# The online loop against the batched engine: {pb.name}, {args.method}",
         "",
-        "Regenerate: "
-        + (
-            f"`python -m precompute --object {SHIPPED['object']} --trials "
-            f"{SHIPPED['trials']} --grasps {SHIPPED['grasps']}` (a reduced build), "
-            "then "
-            if shipped
-            else ""
-        )
-        + f"`python -m legs_jax.online agreement --problem {args.problem} "
-        f"--method {args.method} --rollouts {args.rollouts} --engine-rollouts "
-        f"{args.engine_rollouts} --horizon {args.horizon} --every {args.every} "
-        f"--recognition-rollouts {args.recognition_rollouts}`.",
+        regenerate_line(args, shipped),
         "",
         f"Problem: {pb.name}, {pb.num_real_poses} poses, K = {pb.num_grasps} grasps, "
         f"trial 0; build parameters {pb.meta.get('params')}.",
