@@ -178,3 +178,30 @@ def test_readme_block_runs_and_changes_no_tracked_file(block, tmp_path):
                 shutil.rmtree(p, ignore_errors=True)
             else:
                 p.unlink(missing_ok=True)
+
+
+def _md_rows(text: str) -> dict[str, list[str]]:
+    """Rows of the markdown tables in ``text``: label -> the other cells, bold
+    marks removed, ``K_s=`` written ``K=``, a trailing ", extra" dropped."""
+    rows = {}
+    for line in text.splitlines():
+        if not line.startswith("| ") or set(line) <= set("|:- "):
+            continue
+        cells = [c.strip().replace("**", "") for c in line.strip("|").split("|")]
+        label = cells[0].replace("K_s=", "K=").removesuffix(", extra")
+        rows[label] = cells[1:]
+    return rows
+
+
+def test_readme_results_are_table_one():
+    """The README's results table repeats Table I (results/tables/table1.md)
+    cell for cell, so that a rerun that changes Table I cannot leave it stale."""
+    text = README.read_text()
+    section = text.split("## Results", 1)[1].split("\n## ", 1)[0]
+    readme = _md_rows(section)
+    table = _md_rows((ROOT / "results" / "tables" / "table1.md").read_text())
+    shown = [label for label in readme if label in table]
+    assert len(shown) >= 7, readme.keys()
+    for label in shown:
+        assert readme[label] == table[label], label
+    assert set(readme) - set(shown) <= {"method", "LEGS wins"}
