@@ -1,14 +1,16 @@
 """The committed tables are what the committed results give: regenerating them from
 ``results/`` (without rerunning anything) reproduces every committed table file
-byte for byte."""
+byte for byte; the runs that one experiment copies from another are the other's."""
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 
+import pandas as pd
 import pytest
 
 import experiments
@@ -40,3 +42,52 @@ def test_committed_tables_regenerate_exactly(tmp_path):
         fresh = out / "tables" / path.name
         assert fresh.is_file(), f"{path.name} was not regenerated"
         assert fresh.read_bytes() == path.read_bytes(), path.name
+
+
+# Columns that name a run (its configuration and seed), and what it gave.
+_RUN_KEY = [
+    "set", "object", "method", "variant", "trial", "rollout", "seed", "s",
+    "prior_offset", "delta", "gamma", "k", "n", "epsilon", "eta", "horizon",
+]  # fmt: skip
+_RUN_OUTCOME = [
+    "final_gap", "final_performance", "successes", "distinct_grasps", "replacements",
+]  # fmt: skip
+
+
+def _copied_arms(experiment: str) -> list[str]:
+    """Arms of ``experiment`` whose every chunk was copied from ``main``."""
+    manifest = json.loads((RESULTS / experiment / "manifest.json").read_text())
+    copied: dict[str, bool] = {}
+    for chunk_id, chunk in manifest["chunks"].items():
+        arm = chunk_id.split("__")[0]
+        sources = chunk.get("reused_from") or []
+        from_main = bool(sources) and all(s.startswith("main/") for s in sources)
+        copied[arm] = copied.get(arm, True) and from_main
+    return sorted(arm for arm, ok in copied.items() if ok)
+
+
+@pytest.mark.skipif(
+    not (RESULTS / "main" / "runs.parquet").is_file(),
+    reason="no committed results in this checkout",
+)
+@pytest.mark.parametrize("experiment", ["case_study", "early_stopping"])
+def test_rows_copied_from_main_are_mains_rows(experiment):
+    """An experiment that repeats runs of ``main`` copies their chunks; when one of
+    ``main``'s rows is recomputed, the copies must follow it (a stale copy would
+    make the case study disagree with Table I for the same seeds)."""
+    arms = _copied_arms(experiment)
+    assert arms, f"{experiment} copies no arm of main"
+    main = pd.read_parquet(RESULTS / "main" / "runs.parquet")
+    runs = pd.read_parquet(RESULTS / experiment / "runs.parquet")
+    dotted = runs["method"] + "." + runs["variant"]
+    arm = runs["method"].where(runs["variant"] == "", dotted)
+    copied = runs[arm.isin(arms)]
+    assert len(copied) > 0
+    both = copied.merge(main, on=_RUN_KEY, how="left", suffixes=("", "_main"))
+    assert len(both) == len(copied), "a copied run matches several of main's"
+    missing = both["final_gap_main"].isna()
+    assert not missing.any(), f"{int(missing.sum())} copied runs are not in main"
+    for col in _RUN_OUTCOME:
+        differ = both[col].to_numpy() != both[col + "_main"].to_numpy()
+        bad = both.loc[differ, ["object", "method", "trial", "rollout"]]
+        assert not differ.any(), f"{col} differs from main's in {len(bad)} runs:\n{bad}"
