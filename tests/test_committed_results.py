@@ -15,6 +15,7 @@ import pytest
 
 import experiments
 from legs_jax.report import figures
+from legs_jax.results import hparam_columns
 
 REPORTED = experiments.for_report()
 
@@ -46,8 +47,8 @@ def test_committed_tables_regenerate_exactly(tmp_path):
 
 # Columns that name a run (its configuration and seed), and what it gave.
 _RUN_KEY = [
-    "set", "object", "method", "variant", "trial", "rollout", "seed", "s",
-    "prior_offset", "delta", "gamma", "k", "n", "epsilon", "eta", "horizon",
+    "set", "object", "method", "variant", "trial", "rollout", "seed",
+    *hparam_columns(), "horizon",
 ]  # fmt: skip
 _RUN_OUTCOME = [
     "final_gap", "final_performance", "successes", "distinct_grasps", "replacements",
