@@ -151,7 +151,8 @@ def test_timed_calls_measure_wall_and_cpu_seconds():
 
 def test_interleaved_rates_time_in_turns():
     """Repeat r of every function before repeat r + 1 of any (after one warm-up
-    call each), so that a change of load hits them alike."""
+    call each), so that a change of load hits them alike, the order rotated by one
+    from each repeat to the next (none always first)."""
     order = []
 
     def fn(name):
@@ -161,8 +162,10 @@ def test_interleaved_rates_time_in_turns():
 
         return call
 
-    rates = common._interleaved_rates({"a": fn("a"), "b": fn("b")}, 2.0, 3, 0.0)
-    assert order == ["a", "b"] * 4  # warm-up, then three repeats of one call each
+    fns = {"a": fn("a"), "b": fn("b"), "c": fn("c")}
+    rates = common._interleaved_rates(fns, 2.0, 4, 0.0)
+    # warm-up, then four repeats of one call each, each starting one later
+    assert order == list("abc" + "abc" + "bca" + "cab" + "abc")
     for r in rates.values():
         assert set(r) == {"per_s", "per_cpu_s"}
         assert r["per_s"] <= 2.0 / 0.002 * 1.01

@@ -180,16 +180,21 @@ def _interleaved_rates(
 ) -> dict[str, dict[str, float]]:
     """Work per second of each of ``fns``, timed in turns (repeat r of every one
     before repeat r + 1 of any), so that a change of machine load hits them
-    alike. For each: the median over repeats of work per wall second and of work
-    per CPU second of this process (all its threads: a per-core rate however
-    many cores a program used)."""
+    alike, and in an order rotated by one from each repeat to the next, so that
+    none is always the first timed after another's run (in short repeats the
+    first of a turn was measured slower than the same function later in it).
+    For each: the median over repeats of work per wall second and of work per
+    CPU second of this process (all its threads: a per-core rate however many
+    cores a program used)."""
     wall: dict[str, list[float]] = {k: [] for k in fns}
     cpu: dict[str, list[float]] = {k: [] for k in fns}
     for fn in fns.values():
         fn()  # warm-up (compiled already)
-    for _ in range(repeats):
-        for name, fn in fns.items():
-            per_s, per_cpu_s = _timed_calls(fn, work, min_seconds)
+    names = list(fns)
+    for r in range(repeats):
+        shift = r % len(names) if names else 0
+        for name in names[shift:] + names[:shift]:
+            per_s, per_cpu_s = _timed_calls(fns[name], work, min_seconds)
             wall[name].append(per_s)
             cpu[name].append(per_cpu_s)
     return {
