@@ -266,6 +266,38 @@ def test_table_shows_the_check_costs_it_is_given():
     )
 
 
+def test_table_shows_the_sampler_versions_and_the_one_core_runs_it_is_given():
+    versions = {
+        "sampler_versions": {"old": "mt-1", "new": "cheng-1"},
+        "sampler_versions_shape": [64, 2000],
+        "sampler_old_samples_per_s": 30e6, "sampler_old_samples_per_cpu_s": 31e6,
+        "sampler_new_samples_per_s": 36e6, "sampler_new_samples_per_cpu_s": 37e6,
+        "sampler_numpy_samples_per_s": 12e6, "sampler_numpy_samples_per_cpu_s": 12.5e6,
+        "sampler_new_over_old_per_cpu_s": 37 / 31,
+        "sampler_new_over_numpy_per_cpu_s": 37 / 12.5,
+        "sampler_old_over_numpy_per_cpu_s": 31 / 12.5,
+        "thompson_step_old_per_cpu_s": 250.0, "thompson_step_new_per_cpu_s": 300.0,
+        "thompson_step_new_over_old_per_cpu_s": 1.2,
+    }  # fmt: skip
+    one = {f"one_core_{k}": v for k, v in versions.items() if "sampler_v" not in k}
+    one.update(
+        one_core_sampler_new_over_numpy_per_cpu_s=3.05,
+        one_core_harder_sampler_new_samples_per_cpu_s=25e6,
+        one_core_harder_sampler_numpy_samples_per_cpu_s=10e6,
+        one_core_harder_sampler_new_over_numpy_per_cpu_s=2.5,
+        one_core_harder_retry_fraction=0.219,
+    )
+    text = bench.format_table(_result(**versions))
+    assert "Thompson-step shapes 64 x 2000" in text
+    assert "per core: new/old 1.19x, new/numpy 2.96x, old/numpy 2.48x" in text
+    assert "held to one core" not in text  # no one-core run given
+    text = bench.format_table(_result(**versions, **one))
+    assert "new/numpy 3.05x, old/numpy 2.48x; Thompson step new/old 1.20x" in text
+    (harder,) = [x for x in text.splitlines() if "original prior" in x]
+    assert "21.9 % retried" in harder and harder.endswith("new/numpy 2.50x")
+    assert "25.0 M/s" in harder and "10.0 M/s" in harder
+
+
 @pytest.mark.slow  # the quick benchmark above times them too
 def test_check_cost_bench_times_both_bounds_on_the_same_shapes():
     """A tiny run of the function-level comparison: both bounds timed, ours at

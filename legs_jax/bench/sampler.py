@@ -34,10 +34,16 @@ def _posterior_shapes(rows: int, arms: int) -> tuple[np.ndarray, np.ndarray]:
     return a, b
 
 
-def _thompson_shapes(rows: int, arms: int) -> tuple[np.ndarray, np.ndarray]:
+def _thompson_shapes(
+    rows: int, arms: int, strength: float = 1.0, offset: float = 1.0
+) -> tuple[np.ndarray, np.ndarray]:
     """Shapes of a K = ``arms`` Thompson step: 70 % of grasps at the prior
     α = 1 + q, β = 1 + (1 − q), 25 % tried a few to tens of times, 5 % with
-    hundreds of counts (successes at the grasp's quality q)."""
+    hundreds of counts (successes at the grasp's quality q).
+
+    ``strength`` s and ``offset`` o give the prior α = o + s q, β = o + s (1 − q)
+    instead: s = 5, o = 0 is BORGES's original prior, whose shapes fall below 1
+    where q < 0.2 or q > 0.8 (Cheng's test rejects such draws more often)."""
     rng = np.random.default_rng(1)
     q = rng.uniform(0.01, 0.99, (rows, arms))
     kind = rng.uniform(size=(rows, arms))
@@ -51,8 +57,8 @@ def _thompson_shapes(rows: int, arms: int) -> tuple[np.ndarray, np.ndarray]:
         ),
     )
     wins = rng.binomial(tries, q)
-    a = (1.0 + q + wins).astype(np.float32)
-    b = (1.0 + (1.0 - q) + tries - wins).astype(np.float32)
+    a = (offset + strength * q + wins).astype(np.float32)
+    b = (offset + strength * (1.0 - q) + tries - wins).astype(np.float32)
     return a, b
 
 
@@ -191,8 +197,9 @@ def bench_sampler_versions(cfg: Settings, quiet: bool) -> dict[str, Any]:
     return out
 
 
-# The keys of _sampler_versions that are rates or ratios (what the one-core run adds).
-_RATES = ("sampler_old", "sampler_new", "sampler_numpy", "thompson_step")
+# The keys of _sampler_versions that are rates or ratios (what the one-core run
+# adds), and those of the harder shapes (measured on one core only).
+_RATES = ("sampler_old", "sampler_new", "sampler_numpy", "thompson_step", "harder_")
 
 
 def _sampler_versions(
@@ -258,16 +265,56 @@ def _sampler_versions(
     return out
 
 
+def _harder_shapes_vs_numpy(rows: int, arms: int, cfg: Settings) -> dict[str, Any]:
+    """The engine's sampler against NumPy's ``Generator.beta`` on the shapes of a
+    Thompson step under BORGES's original prior (:func:`_thompson_shapes` with
+    s = 5, o = 0): the hardest mix the engine's rows draw (in a run on
+    bar_clamp 14-16 % of that row's draws were rejected at try 0, against 5-8 %
+    for the other rows; with q uniform, as here, about 22 %). Timed in turns on
+    one device, per CPU second."""
+    import jax
+    import jax.numpy as jnp
+
+    from legs_jax.core import beta_sampler
+
+    a, b = _thompson_shapes(rows, arms, strength=5.0, offset=0.0)
+    dev = jax.local_devices()[0]
+    keys = jax.device_put(jax.random.split(jax.random.key(3), rows), dev)
+    aj, bj = jax.device_put((jnp.asarray(a), jnp.asarray(b)), dev)
+    draw = jax.jit(beta_sampler.beta_rows_v2)  # compiled by the warm-up call
+    a64, b64 = a.astype(np.float64), b.astype(np.float64)
+    gen = np.random.default_rng(0)
+    fns = {
+        "new": lambda: jax.block_until_ready(draw(keys, aj, bj)),
+        "numpy": lambda: gen.beta(a64, b64),
+    }
+    rates = _interleaved_rates(fns, rows * arms, cfg.repeats, cfg.min_seconds)
+    # The share of draws rejected at try 0 (retried), as the sampler computes it.
+    k0, k1, af, bf = beta_sampler._beta_inputs(keys, aj, bj)
+    cols = jnp.arange(arms, dtype=jnp.uint32)[None]
+    words = beta_sampler.threefry2x32(k0, k1, cols, beta_sampler._counter(0))
+    first = beta_sampler._try(beta_sampler._params(af, bf), *words)
+    return {
+        "harder_sampler_new_samples_per_cpu_s": rates["new"]["per_cpu_s"],
+        "harder_sampler_numpy_samples_per_cpu_s": rates["numpy"]["per_cpu_s"],
+        "harder_sampler_new_over_numpy_per_cpu_s": rates["new"]["per_cpu_s"]
+        / rates["numpy"]["per_cpu_s"],
+        "harder_retry_fraction": float(jnp.mean(first < 0.0)),
+    }
+
+
 # The child of _sampler_versions_one_core: holds itself to one core before JAX
 # (and with it XLA's thread pool) starts, then prints its rates as JSON.
 _ONE_CORE_CHILD = """
 import json, os, sys
 os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
 from legs_jax.bench.common import Settings
-from legs_jax.bench.sampler import _sampler_versions
+from legs_jax.bench.sampler import _harder_shapes_vs_numpy, _sampler_versions
 args = json.loads(sys.argv[1])
 cfg = Settings(**args["cfg"])
-print(json.dumps(_sampler_versions(args["rows"], args["arms"], cfg, True)))
+out = _sampler_versions(args["rows"], args["arms"], cfg, True)
+out.update(_harder_shapes_vs_numpy(args["rows"], args["arms"], cfg))
+print(json.dumps(out))
 """
 
 

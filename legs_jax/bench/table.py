@@ -85,6 +85,17 @@ def format_table(r: dict[str, Any]) -> str:
                 f"{one['sampler_old_over_numpy_per_cpu_s']:.2f}x; Thompson step "
                 f"new/old {one['thompson_step_new_over_old_per_cpu_s']:.2f}x"
             )
+        if "one_core_harder_sampler_new_over_numpy_per_cpu_s" in r:
+            lines.append(
+                "  held to one core, the shapes of BORGES's original prior "
+                "(alpha = 5q + s, beta = 5(1 - q) + f; "
+                f"{100 * r['one_core_harder_retry_fraction']:.1f} % retried): new "
+                f"{_fmt_rate(r['one_core_harder_sampler_new_samples_per_cpu_s'])}/s, "
+                "numpy "
+                f"{_fmt_rate(r['one_core_harder_sampler_numpy_samples_per_cpu_s'])}/s: "
+                "new/numpy "
+                f"{r['one_core_harder_sampler_new_over_numpy_per_cpu_s']:.2f}x"
+            )
         lines.append("")
     lines += [
         f"  random words (Threefry-2x32, one device) "
