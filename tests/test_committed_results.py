@@ -14,8 +14,8 @@ import pandas as pd
 import pytest
 
 import experiments
+from legs_jax import results
 from legs_jax.report import figures
-from legs_jax.results import hparam_columns
 
 REPORTED = experiments.for_report()
 
@@ -45,14 +45,12 @@ def test_committed_tables_regenerate_exactly(tmp_path):
         assert fresh.read_bytes() == path.read_bytes(), path.name
 
 
-# Columns that name a run (its configuration and seed), and what it gave.
+# What a run gave (the package's run results but the horizon, which names it), and
+# the columns that name a run (its configuration and seed; not the experiment).
+_RUN_OUTCOME = [c for c in results._RUN_RESULTS if c != "horizon"]
 _RUN_KEY = [
-    "set", "object", "method", "variant", "trial", "rollout", "seed",
-    *hparam_columns(), "horizon",
-]  # fmt: skip
-_RUN_OUTCOME = [
-    "final_gap", "final_performance", "successes", "distinct_grasps", "replacements",
-]  # fmt: skip
+    c for c in results._run_columns() if c not in _RUN_OUTCOME and c != "experiment"
+]
 
 
 def _copied_arms(experiment: str) -> list[str]:

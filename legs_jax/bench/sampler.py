@@ -290,10 +290,7 @@ def _harder_shapes_vs_numpy(rows: int, arms: int, cfg: Settings) -> dict[str, An
     }
     rates = _interleaved_rates(fns, rows * arms, cfg.repeats, cfg.min_seconds)
     # The share of draws rejected at try 0 (retried), as the sampler computes it.
-    k0, k1, af, bf = beta_sampler._beta_inputs(keys, aj, bj)
-    cols = jnp.arange(arms, dtype=jnp.uint32)[None]
-    words = beta_sampler.threefry2x32(k0, k1, cols, beta_sampler._counter(0))
-    first = beta_sampler._try(beta_sampler._params(af, bf), *words)
+    first = beta_sampler._first_tries(*beta_sampler._beta_inputs(keys, aj, bj))
     return {
         "harder_sampler_new_samples_per_cpu_s": rates["new"]["per_cpu_s"],
         "harder_sampler_numpy_samples_per_cpu_s": rates["numpy"]["per_cpu_s"],

@@ -209,14 +209,20 @@ def beta_rows_v2(keys: jax.Array, a: jax.Array, b: jax.Array) -> jax.Array:
     return _beta_rows(*_beta_inputs(keys, a, b))
 
 
+def _first_tries(k0, k1, a, b):
+    """Try 0 of every element in bulk, [B, N]: the draw where accepted, else -1
+    (the elements the retry buffers take)."""
+    col0 = jnp.arange(a.shape[1], dtype=jnp.uint32)[None]
+    w0, w1 = threefry2x32(k0, k1, col0, _counter(0))
+    return _try(_params(a, b), w0, w1)
+
+
 def _beta_rows(k0, k1, a, b, *, capacity=None, capacity2=None):
     """:func:`beta_rows_v2` on key words [B, 1]; ``capacity`` and ``capacity2``
     (slots of the two retry buffers) change the work, never the values."""
     rows, n = a.shape
     total = rows * n
-    col0 = jnp.arange(n, dtype=jnp.uint32)[None]
-    w0, w1 = threefry2x32(k0, k1, col0, _counter(0))
-    x = _try(_params(a, b), w0, w1).reshape(-1)
+    x = _first_tries(k0, k1, a, b).reshape(-1)
     if total == 0:
         return x.reshape(rows, n)
     c1 = _round64(total / 8 + 64) if capacity is None else max(2, capacity)
