@@ -35,3 +35,19 @@ def pytest_xdist_auto_num_workers(config) -> int:
     """``-n auto``: one worker per core, at most four (each worker holds a JAX
     runtime and its compiled programs, up to about 3 GB)."""
     return max(1, min(os.cpu_count() or 1, 4))
+
+
+@pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the groups
+def pytest_collection_modifyitems(config, items):
+    """Tests that read one of their module's shared fixtures (``scope="module"``)
+    go to one worker, which builds it once: they form one xdist group per module
+    (``--dist loadgroup``), unless a test already names its group."""
+    for item in items:
+        info = getattr(item, "_fixtureinfo", None)
+        module = getattr(item, "module", None)
+        if info is None or module is None or item.get_closest_marker("xdist_group"):
+            continue
+        if any(
+            d.scope == "module" for defs in info.name2fixturedefs.values() for d in defs
+        ):
+            item.add_marker(pytest.mark.xdist_group(f"fixtures-{module.__name__}"))

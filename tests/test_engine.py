@@ -232,16 +232,14 @@ def test_programs_kept_on_disk_give_the_same_numbers(tmp_path, methods):
     assert len(list(kept.glob("*.exe"))) >= programs
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "method",
-    # TQL by default; LEGS (our bound's counts of forgotten grasps) and BORGES
-    # (K=2000, the exact sampler) are slow only: the padding of poses, tables and
-    # mini-batches is the engine's, the same for every method
-    [
-        pytest.param("legs", marks=pytest.mark.slow),
-        pytest.param("borges_2000", marks=pytest.mark.slow),
-        "tql",
-    ],
+    # LEGS (our bound's counts of forgotten grasps) and BORGES (K=2000, the exact
+    # sampler) beside TQL: the padding of poses, tables and mini-batches is the
+    # engine's, the same for every method. By default TQL's case runs in the test
+    # below, in a process with two host devices.
+    ["legs", "borges_2000", "tql"],
 )
 def test_shape_buckets_are_bit_identical(method):
     """A sweep pads a chunk's poses to its bucket and its tables and mini-batches
@@ -596,6 +594,7 @@ def _same_but_our_bound(a, b):
         np.testing.assert_array_equal(x, y, err_msg=name)
 
 
+@pytest.mark.slow  # an opt-out switch; our bound itself is tested by default
 def test_the_paper_bound_alone_leaves_every_other_field_as_it_was():
     """``our_bound=False`` skips our bound's fit: its field is NaN and every other
     field, the paper's bound included, is the same bit for bit as with it."""

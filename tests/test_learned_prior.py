@@ -305,6 +305,7 @@ def _train_prior(out: Path, jobs: str, env, cwd):
     return run_module("precompute", args, cwd=cwd, env=env, timeout=300)
 
 
+@pytest.mark.slow  # trains a network; the shipped prior is tested by default
 def test_train_prior_quick_lowers_the_validation_loss(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(REPO))
     out = tmp_path / "w"

@@ -144,13 +144,21 @@ _SIBLING_OF = {"bayes_ucb_2000": "bayes_ucb_100", "borges_2000": "borges_100",
                "legs_no_as": "legs"}  # fmt: skip
 
 
-@pytest.mark.parametrize(
-    "name",
-    [
-        pytest.param(n, marks=pytest.mark.slow) if n in _SIBLING_OF else n
-        for n in methods.names()
-    ],
-)
+def shared_run_params(names) -> list:
+    """``names`` as parameters of a test that reads ``shared_run(name)``: each in
+    the group of tests that read the same run (one worker computes it once), and
+    a sibling in the slow suite."""
+    return [
+        pytest.param(
+            n,
+            marks=[pytest.mark.xdist_group(f"shared-run-{n}")]
+            + ([pytest.mark.slow] if n in _SIBLING_OF else []),
+        )
+        for n in names
+    ]
+
+
+@pytest.mark.parametrize("name", shared_run_params(methods.names()))
 def test_conformance_jit_vmap_grid(name):
     """Every method under jit(vmap) over a grid axis of hyperparameters: masks,
     candidate sets, finite outputs, counters (one compiled program)."""

@@ -15,6 +15,9 @@ from legs_jax.online.protocol import serve
 from legs_jax.online.robot import SimRobot, World
 from legs_jax.online.sampler import geometric_prior, sample_grasps
 
+# One worker runs this file: its sessions share the compiled session programs.
+pytestmark = pytest.mark.xdist_group("online-sessions")
+
 # A 320x240 camera (half the default resolution) keeps the tests fast.
 INTR = Intrinsics(fx=262.5, fy=262.5, cx=159.5, cy=119.5, width=320, height=240)
 K = 300  # reservoir size of the sessions here

@@ -20,7 +20,15 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy import stats
-from test_methods import CFG_KN, ODD, RUN, conformance_problem, own, shared_run
+from test_methods import (
+    CFG_KN,
+    ODD,
+    RUN,
+    conformance_problem,
+    own,
+    shared_run,
+    shared_run_params,
+)
 
 from legs_jax.core import engine, methods
 from legs_jax.core import reference as ref
@@ -90,7 +98,7 @@ LEARNERS = tuple(
 )
 
 
-@pytest.mark.parametrize("name", LEARNERS)
+@pytest.mark.parametrize("name", shared_run_params(LEARNERS))
 def test_parity_in_distribution(name):
     e, r = engine_result(name), reference_result(name)
     assert e["final_gap"].size >= 200 and r["final_gap"].size >= 200
@@ -119,7 +127,7 @@ def test_parity_in_distribution(name):
     )
 
 
-@pytest.mark.parametrize("name", ["dexnet", "k100_ub"])
+@pytest.mark.parametrize("name", shared_run_params(["dexnet", "k100_ub"]))
 def test_constant_rows_exact(name):
     """Dex-Net and the K100 upper bound: the same constant gap as the reference at
     every recorded step, and the environment statistics in distribution."""
@@ -133,6 +141,7 @@ def test_constant_rows_exact(name):
     _welch(e["check_p_lower"][:, -1], r["check_p_lower"][:, -1], "p_lower")
 
 
+@pytest.mark.xdist_group("shared-run-borges_100")
 def test_borges_100_never_below_k100_upper_bound():
     """BORGES (K=100) recommends within the top-100 by q, so at every recorded step
     its gap is at least the K100 upper bound's (the paper, Section 5)."""
@@ -172,7 +181,7 @@ def test_dirichlet_bound_in_distribution():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", LEARNERS)
+@pytest.mark.parametrize("name", shared_run_params(LEARNERS))
 def test_parity_unusual_hyperparameters(name):
     """Grid point 2 of the conformance run (the original BORGES prior,
     prior_offset = 0 and s = 5, with δ = 0.2, γ = 0.5, ε = 0.5, η = 0.3): 128 engine
