@@ -51,7 +51,7 @@ is within 2^-25 of 1. Both happen with real probability only for shapes below 1
 Retries: try 0 of every element runs in bulk, in one pass (about 10 % of
 posterior-like draws are rejected). The rejected ones are packed (first level,
 :func:`legs_jax.core.sampling._pending_slots`) into a buffer of ``capacity``
-slots (total / 8 + 64 by default; more pending elements take further passes) and
+slots (total / 10 + 64 by default; more pending elements take further passes) and
 get try 1 there; the ones rejected again are packed into a second buffer
 (``capacity2`` slots, capacity / 8 + 64) and take tries 2, 3, ... until every
 one is accepted. Try t of element j uses the counter (j, stream << 24 | t), and
@@ -225,7 +225,7 @@ def _beta_rows(k0, k1, a, b, *, capacity=None, capacity2=None):
     x = _first_tries(k0, k1, a, b).reshape(-1)
     if total == 0:
         return x.reshape(rows, n)
-    c1 = _round64(total / 8 + 64) if capacity is None else max(2, capacity)
+    c1 = _round64(total / 10 + 64) if capacity is None else max(2, capacity)
     c2 = _round64(c1 / 8 + 64) if capacity2 is None else max(2, capacity2)
     a_flat, b_flat = a.reshape(-1), b.reshape(-1)
     key_pairs = jnp.concatenate([k0, k1], axis=1)  # [B, 2]
