@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +31,27 @@ def box() -> World:
 def clamp_problem(tmp_path_factory) -> Path:
     """A small bar_clamp problem file (1 trial, 100 grasps a pose, 20 samples)."""
     return small_clamp_file(tmp_path_factory.mktemp("problem"))
+
+
+def pytest_configure(config):
+    """The run's own JAX compilation cache, shared by its workers and their
+    subprocesses and removed at the end: a command under test that turns the
+    cache on (the sweep and the online CLI do by default) neither writes into the
+    user's ``~/.cache`` nor reads programs an earlier run left there, so every
+    run starts cold, as in a fresh checkout."""
+    if os.environ.get("PYTEST_XDIST_WORKER") is None:  # the controller, or -n 0
+        path = tempfile.mkdtemp(prefix="legs_jax-tests-jax-cache-")
+        os.environ["JAX_COMPILATION_CACHE_DIR"] = path
+        config.stash[_CACHE_KEY] = path
+
+
+def pytest_unconfigure(config):
+    path = config.stash.get(_CACHE_KEY, None)
+    if path is not None:
+        shutil.rmtree(path, ignore_errors=True)
+
+
+_CACHE_KEY = pytest.StashKey[str]()
 
 
 def pytest_xdist_auto_num_workers(config) -> int:
