@@ -8,13 +8,18 @@ import os
 def compile_cache(option: str | None) -> str | None:
     """Turn on JAX's persistent compilation cache (results do not depend on it).
 
-    ``option``: "off", a folder, or None for ``$JAX_COMPILATION_CACHE_DIR`` or
-    ``$XDG_CACHE_HOME/legs_jax/jax``. Returns the folder used, None when off or
-    when the folder cannot be made (a read-only home: run without the cache).
+    ``option``: "off", a folder, or None for ``$JAX_COMPILATION_CACHE_DIR``,
+    ``$LEGS_JAX_CACHE_DIR`` or ``$XDG_CACHE_HOME/legs_jax/jax``, the first that is
+    set. Returns the folder used, None when off or when the folder cannot be made
+    (a read-only home: run without the cache).
     """
     if option == "off":
         return None
-    path = option or os.environ.get("JAX_COMPILATION_CACHE_DIR")
+    path = (
+        option
+        or os.environ.get("JAX_COMPILATION_CACHE_DIR")
+        or os.environ.get("LEGS_JAX_CACHE_DIR")
+    )
     if not path:
         base = os.environ.get("XDG_CACHE_HOME") or os.path.join(
             os.path.expanduser("~"), ".cache"

@@ -41,7 +41,8 @@ def pytest_configure(config):
     run starts cold, as in a fresh checkout."""
     if os.environ.get("PYTEST_XDIST_WORKER") is None:  # the controller, or -n 0
         path = tempfile.mkdtemp(prefix="legs_jax-tests-jax-cache-")
-        os.environ["JAX_COMPILATION_CACHE_DIR"] = path
+        os.environ["LEGS_JAX_CACHE_DIR"] = path  # JAX itself leaves it off
+        os.environ.pop("JAX_COMPILATION_CACHE_DIR", None)
         config.stash[_CACHE_KEY] = path
 
 
