@@ -42,7 +42,10 @@ def pytest_configure(config):
     if os.environ.get("PYTEST_XDIST_WORKER") is None:  # the controller, or -n 0
         path = tempfile.mkdtemp(prefix="legs_jax-tests-jax-cache-")
         os.environ["LEGS_JAX_CACHE_DIR"] = path  # JAX itself leaves it off
-        os.environ.pop("JAX_COMPILATION_CACHE_DIR", None)
+        if os.environ.pop("JAX_COMPILATION_CACHE_DIR", None) is not None:
+            import jax  # read the variable when imported (by this file's imports)
+
+            jax.config.update("jax_compilation_cache_dir", None)
         config.stash[_CACHE_KEY] = path
 
 
