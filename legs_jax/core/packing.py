@@ -79,7 +79,10 @@ def _pending_slots(pending: jax.Array, capacity: int, *, with_count: bool = Fals
     ends = jnp.zeros((capacity + 1,), jnp.int32).at[before + counts].add(1, mode="drop")
     block = _exclusive_prefix_sum(ends)[1:]  # words ending at or before each slot
     slot = jnp.arange(capacity, dtype=jnp.int32)
-    valid = slot < before[-1] + counts[-1]
+    # A slot past the last pending entry has every word end at or before it. (The
+    # same test as slot < count, without the count: a scalar read in the pass below
+    # made XLA's CPU loop over the slots three times as slow.)
+    valid = block < nw
     block = jnp.minimum(block, nw - 1)  # (only past the last pending entry)
     # The two gathers in a pass of their own: in the same pass as the bit search
     # they turn its vector loop into a scalar one.
