@@ -468,7 +468,11 @@ def test_json_lines_exchange(tmp_path, clamp):
 # ------------------------------------------------------------------ command line
 
 
-def test_cli_help_and_clear_errors(tmp_path, capsys):
+def test_cli_help_and_clear_errors(tmp_path, capsys, monkeypatch):
+    """Refusals print one line and exit 2; a refused ``simulate`` turns JAX's
+    compilation cache on nowhere (it is process-wide)."""
+    turned_on = []
+    monkeypatch.setattr(cli, "compile_cache", turned_on.append)
     with pytest.raises(SystemExit) as e:
         cli.main(["--help"])
     assert e.value.code == 0
@@ -506,6 +510,7 @@ def test_cli_help_and_clear_errors(tmp_path, capsys):
         == 2
     )
     assert "--resume" in capsys.readouterr().err
+    assert turned_on == []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         assert (

@@ -347,8 +347,7 @@ def main(argv=None) -> int:
             compile_cache(args.compile_cache)
             return _serve(args)
         if args.command == "simulate":
-            compile_cache(args.compile_cache)
-            return _simulate(args)
+            return _simulate(args)  # turns the cache on once its arguments pass
         if args.command == "recognition-table":
             return table_main(args)
         if args.command == "agreement":
@@ -530,6 +529,7 @@ def _simulate(args) -> int:
                 world = World.from_mesh(name)
     except PrecomputeError as e:
         raise InputError(str(e)) from None
+    compile_cache(args.compile_cache)  # not before: a refused command turns nothing on
     if pb is not None:
         # the poses where no grasp can succeed (in some trial); a pose that a
         # failure never leaves but a success can is learnable, and common (every
