@@ -323,3 +323,23 @@ def test_bench_of_one_method_runs_the_steps_it_reports():
     row = bench.bench_jax_engine("tql", cfg, engine._problem(cfg))
     assert row["rollouts"] == 6 and row["horizon"] == 20
     assert math.isfinite(row["jax"]) and row["jax"] > 0 and row["compile_s"] >= 0
+
+
+def test_the_one_core_child_gets_one_xla_device():
+    """The benchmark sets one XLA device per core in its own process; its one-core
+    child must not inherit that (two devices' thread pools on one core slowed
+    the samplers there)."""
+    from legs_jax.bench import sampler
+
+    flags = "--xla_force_host_platform_device_count=2 --xla_cpu_use_thunk_runtime=true"
+    env = sampler._one_device_env({"XLA_FLAGS": flags, "HOME": "/h"})
+    assert env == {"XLA_FLAGS": "--xla_cpu_use_thunk_runtime=true", "HOME": "/h"}
+    child_env = sampler._one_device_env({**os.environ, "XLA_FLAGS": flags.split()[0]})
+    done = subprocess.run(
+        [sys.executable, "-c", "import jax; print(jax.device_count())"],
+        env=child_env,
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert done.stdout.split() == ["1"]
