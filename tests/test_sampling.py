@@ -178,6 +178,27 @@ def test_pending_slots_are_the_first_true_entries(total, rate, capacity):
     assert int(count) == int(mask.sum())  # may exceed the capacity
 
 
+@pytest.mark.parametrize("capacity", [2, 3, 64, 65])
+def test_pending_slots_at_the_edges(capacity):
+    """Slots are valid exactly up to the pending count, wherever the last pending
+    entry falls: at the end of the last word or alone in it, a count equal to the
+    capacity, one more, one less."""
+    masks = [np.zeros(96, bool) for _ in range(6)]
+    masks[0][-1] = True  # the last entry of the last word
+    masks[1][64] = True  # alone, first in the last word
+    masks[2][:] = True  # every entry
+    masks[3][: capacity + 1] = True
+    masks[4][:capacity] = True
+    masks[5][[0, 31, 32, 63]] = True  # word ends
+    fn = jax.jit(lambda m: sampling._pending_slots(m, capacity, with_count=True))
+    for mask in masks:
+        got, count = (np.asarray(x) for x in fn(mask))
+        want = np.flatnonzero(mask)[:capacity]
+        want = np.concatenate([want, np.full(capacity - len(want), mask.size)])
+        np.testing.assert_array_equal(got, want)
+        assert int(count) == int(mask.sum())
+
+
 def test_batch_invariance_bit_identical():
     """Row i depends only on keys[i], a[i], b[i]: a batch of 8, two batches of 4
     and 8 single rows give the same bits, with a row of shapes below 1 (which
