@@ -68,6 +68,10 @@ about 13 ns (XLA on CPU compiles it to seven fusions, the per-element constants 
 five of them), the whole sampler 23-25 ns, so the retry of the ~9 % rejected costs
 about 10 ns per element of the batch. Retries in fixed slots per 32-element word
 (no prefix sums) kept the bits but were no faster: one try costs about 15 ns a slot.
+Since the packing marks its valid slots without reading the pending count, finding
+the slots is twice as fast; on a 2-core Intel Xeon (AVX-512, one core) the whole
+sampler takes about 15 ns an element, the retry about 5 of them
+(``docs/performance.md``).
 On CPU, XLA contracts products and sums into fused multiply-adds fusion by fusion,
 so a change of the retry's program can move the bulk pass's last bits: a change
 must be compared bit for bit with the jitted sampler before it.
