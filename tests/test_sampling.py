@@ -170,26 +170,13 @@ def test_beta_retry_schedule_does_not_change_values(boost):
 def test_pending_slots_are_the_first_true_entries(total, rate, capacity):
     """The packed slot search returns np.flatnonzero(mask)[:capacity], padded."""
     mask = np.random.default_rng(total).uniform(size=total) < rate
-    fn = jax.jit(lambda m: sampling._pending_slots(m, capacity, with_count=True))
-    got, count = (np.asarray(x) for x in fn(mask))
-    want = np.flatnonzero(mask)[:capacity]
-    want = np.concatenate([want, np.full(capacity - len(want), total)])
-    np.testing.assert_array_equal(got, want)
-    assert int(count) == int(mask.sum())  # may exceed the capacity
+    _check_pending_slots([mask], capacity)
 
 
-@pytest.mark.parametrize("capacity", [2, 3, 64, 65])
-def test_pending_slots_at_the_edges(capacity):
-    """Slots are valid exactly up to the pending count, wherever the last pending
-    entry falls: at the end of the last word or alone in it, a count equal to the
-    capacity, one more, one less."""
-    masks = [np.zeros(96, bool) for _ in range(6)]
-    masks[0][-1] = True  # the last entry of the last word
-    masks[1][64] = True  # alone, first in the last word
-    masks[2][:] = True  # every entry
-    masks[3][: capacity + 1] = True
-    masks[4][:capacity] = True
-    masks[5][[0, 31, 32, 63]] = True  # word ends
+def _check_pending_slots(masks, capacity):
+    """Each mask's slots are its first ``capacity`` True entries, padded with its
+    size, and its count is its number of True entries (which may exceed the
+    capacity)."""
     fn = jax.jit(lambda m: sampling._pending_slots(m, capacity, with_count=True))
     for mask in masks:
         got, count = (np.asarray(x) for x in fn(mask))
@@ -197,6 +184,22 @@ def test_pending_slots_at_the_edges(capacity):
         want = np.concatenate([want, np.full(capacity - len(want), mask.size)])
         np.testing.assert_array_equal(got, want)
         assert int(count) == int(mask.sum())
+
+
+@pytest.mark.parametrize("capacity", [2, 3, 64, 65])
+def test_pending_slots_at_the_edges(capacity):
+    """Slots are valid exactly up to the pending count, wherever the last pending
+    entry falls: at the end of the last word or alone in it, a count equal to the
+    capacity, one more, one less."""
+    masks = [np.zeros(96, bool) for _ in range(7)]
+    masks[0][-1] = True  # the last entry of the last word
+    masks[1][64] = True  # alone, first in the last word
+    masks[2][:] = True  # every entry
+    masks[3][: capacity + 1] = True
+    masks[4][:capacity] = True
+    masks[5][: capacity - 1] = True
+    masks[6][[0, 31, 32, 63]] = True  # word ends
+    _check_pending_slots(masks, capacity)
 
 
 def test_batch_invariance_bit_identical():
