@@ -232,6 +232,62 @@ def test_programs_kept_on_disk_give_the_same_numbers(tmp_path, methods):
     assert len(list(kept.glob("*.exe"))) >= programs
 
 
+def test_cpu_vector_width_is_chosen_by_the_processor(monkeypatch):
+    """512-bit vectors on a CPU with AVX-512 unless the variable says otherwise,
+    none on other CPUs or accelerators; a bad value is refused in one line."""
+    from legs_jax import _machine
+
+    wide = {"xla_cpu_prefer_vector_width": 512}
+    cpu = [type("Dev", (), {"platform": "cpu"})()]
+    gpu = [type("Dev", (), {"platform": "gpu"})()]
+    env = programs.VECTOR_WIDTH_ENV
+    for isa, want in (("AVX-512", wide), ("AVX2", {}), ("aarch64", {})):
+        monkeypatch.setattr(_machine, "machine", lambda isa=isa: {"isa": isa})
+        monkeypatch.delenv(env, raising=False)
+        assert programs.cpu_vector_options(cpu) == want
+        assert programs.cpu_vector_options(gpu) == {}
+        monkeypatch.setenv(env, "256")
+        assert programs.cpu_vector_options(cpu) == {}
+        monkeypatch.setenv(env, " 512 ")
+        assert programs.cpu_vector_options(cpu) == wide
+        assert programs.cpu_vector_options(gpu) == {}
+    monkeypatch.setenv(env, "wide")
+    with pytest.raises(ConfigError, match="must be 256 or 512.*'wide'"):
+        programs.cpu_vector_options(cpu)
+
+
+def test_wide_vectors_give_the_same_numbers(hidden, monkeypatch):
+    """The simulation program compiled for 512-bit vectors (where the processor
+    has them: elsewhere both runs are the same program) gives every field of
+    LEGS's runs, curves and checks bit for bit as with 256-bit ones but our bound,
+    which moves by float32 rounding only (its fit sums in another order; on
+    bar_clamp and gearbox by at most 2.4e-6); the option reaches the compiled
+    program's description."""
+    got = {}
+    for width in ("256", "512"):
+        monkeypatch.setenv(programs.VECTOR_WIDTH_ENV, width)
+        rollouts._compiled.cache_clear()
+        before = set(programs._OPTIONS)
+        got[width] = runtime.run(
+            hidden, "legs", **{**HIDDEN, "horizon": 1000}, check_every=250
+        )
+        made = [dict(o) for f, o in programs._OPTIONS.items() if f not in before]
+        want = [{"xla_cpu_prefer_vector_width": 512}] if width == "512" else []
+        assert made == want
+    rollouts._compiled.cache_clear()
+    for name, narrow in got["256"]._asdict().items():
+        wide = getattr(got["512"], name)
+        if narrow is None:
+            assert wide is None, name
+            continue
+        assert narrow.dtype == wide.dtype and narrow.shape == wide.shape, name
+        if name == "check_p_lower_eb":
+            assert np.isfinite(wide).all()
+            np.testing.assert_allclose(wide, narrow, rtol=0, atol=1e-5)
+        else:
+            assert narrow.tobytes() == wide.tobytes(), name
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize(
     "method",

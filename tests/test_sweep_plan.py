@@ -370,7 +370,8 @@ def probs(tmp_path):
     return _problems(tmp_path, [("alpha", 3, 200), ("beta", 5, 200)])
 
 
-def test_cli_runs_and_writes_schema(tmp_path, probs, fake_engine, capsys):
+def test_cli_runs_and_writes_schema(tmp_path, probs, fake_engine, capsys, monkeypatch):
+    monkeypatch.delenv("LEGS_JAX_CPU_VECTOR_WIDTH", raising=False)
     out = tmp_path / "out"
     args = ["--experiment", "main", "--problems", *probs, "--out", str(out)]
     code, err = _cli(
@@ -403,6 +404,10 @@ def test_cli_runs_and_writes_schema(tmp_path, probs, fake_engine, capsys):
     # synthetic.make_problem's q is made from p: the synthetic kind
     assert man["problem_files"]["alpha"]["prior"] == man["priors"][0] == "synthetic"
     assert man["versions"]["jax"] and man["sessions"][0]["devices"]["count"] >= 1
+    # the XLA options of the simulation programs, which can move a bound's bits
+    wide = {"xla_cpu_prefer_vector_width": 512}
+    isa_wide = man["versions"]["isa"] == "AVX-512"
+    assert man["sessions"][0]["devices"]["xla_options"] == (wide if isa_wide else {})
     assert "commit" in man["git"]
 
 

@@ -24,11 +24,11 @@ a second process traces and compiles nothing.
 
 A kept program is found by the SHA-256 of: the source of every module of
 ``legs_jax``, the versions of jax, jaxlib, NumPy and SciPy, the function's
-description (method, static configuration, devices) and its arguments' shapes,
-types and shardings; its executable also by the processor (model and instruction
-set flags) and the XLA backend's version. Only the registered methods (all their
-functions in ``legs_jax``) are kept: a user's method may depend on code outside
-the package, so it is traced anew by each process.
+description (method, static configuration, devices, XLA options) and its
+arguments' shapes, types and shardings; its executable also by the processor
+(model and instruction set flags) and the XLA backend's version. Only the
+registered methods (all their functions in ``legs_jax``) are kept: a user's method
+may depend on code outside the package, so it is traced anew by each process.
 """
 
 from __future__ import annotations
@@ -49,7 +49,11 @@ _EXECUTABLES: OrderedDict = OrderedDict()
 _MAX_EXECUTABLES = 64
 _COMPILE_SECONDS = [0.0]
 _DESCRIPTIONS: dict[Any, str] = {}
+_OPTIONS: dict[Any, tuple] = {}
+_PLAIN: dict[Any, Callable] = {}
 _FOLDER = "legs_jax-exported"
+# The choice of the simulation programs' vector width on CPU (see cpu_vector_options).
+VECTOR_WIDTH_ENV = "LEGS_JAX_CPU_VECTOR_WIDTH"
 
 
 def compile_seconds() -> float:
@@ -58,13 +62,58 @@ def compile_seconds() -> float:
     return _COMPILE_SECONDS[0]
 
 
-def describe(fn: Callable, name: str | None, *parts: Any) -> Callable:
+def describe(
+    fn: Callable,
+    name: str | None,
+    *parts: Any,
+    compiler_options: dict[str, Any] | None = None,
+) -> Callable:
     """Record a stable description of the jitted ``fn`` (a name and its static
     facts), which lets :func:`call` keep its traced program on disk; returns
-    ``fn``. A name of None keeps it off disk."""
+    ``fn``. A name of None keeps it off disk. ``compiler_options`` (XLA's, those
+    ``fn`` was jitted with) are used again where :func:`call` compiles the kept
+    program, and are part of its description."""
+    options = tuple(sorted((compiler_options or {}).items()))
+    if options:
+        _OPTIONS[fn] = options
+        # Exported, the program is traced inside another jit, where a nested jit
+        # may not carry compiler options: the same function jitted without them.
+        _PLAIN[fn] = jax.jit(fn.__wrapped__)
     if name is not None:
-        _DESCRIPTIONS[fn] = repr((name, *parts))
+        _DESCRIPTIONS[fn] = repr((name, *parts, *((options,) if options else ())))
     return fn
+
+
+def cpu_vector_options(devices=None) -> dict[str, Any]:
+    """XLA options for the engine's simulation programs: 512-bit vectors on a CPU
+    with AVX-512, none elsewhere.
+
+    XLA's CPU backend prefers 256-bit vectors even where the processor has 512-bit
+    ones; the exact Beta sampler, most of a Thompson step, runs about 1.25 times as
+    fast with 512. The simulation programs' results are the same bits either way
+    on the problems measured (every run and curve), so this changes speed only.
+    The Dirichlet checks (:func:`legs_jax.runtime.rollouts.compiled_checks`) keep
+    XLA's default: 512-bit vectors change the last bits of a bound (the order of a
+    sum). ``LEGS_JAX_CPU_VECTOR_WIDTH=256`` (or ``512``) sets the width instead.
+    """
+    platform = devices[0].platform if devices else jax.default_backend()
+    if platform != "cpu":
+        return {}
+    choice = os.environ.get(VECTOR_WIDTH_ENV, "").strip()
+    if choice == "":
+        from legs_jax._machine import machine
+
+        wide = machine()["isa"] == "AVX-512"
+    elif choice in ("256", "512"):
+        wide = choice == "512"
+    else:
+        from legs_jax.errors import ConfigError
+
+        raise ConfigError(
+            f"{VECTOR_WIDTH_ENV} must be 256 or 512 (or unset: 512 on a CPU with"
+            f" AVX-512, else 256), got {choice!r}"
+        )
+    return {"xla_cpu_prefer_vector_width": 512} if wide else {}
 
 
 def method_fingerprint(method: Any) -> str | None:
@@ -148,8 +197,10 @@ def _exported(fn: Callable, key: str, folder: Path, leaves, tree):
         except Exception:  # noqa: BLE001 - a damaged file is made again
             pass
 
+    plain = _PLAIN.get(fn, fn)
+
     def flat(*xs):
-        return fn(*jax.tree_util.tree_unflatten(tree, xs))
+        return plain(*jax.tree_util.tree_unflatten(tree, xs))
 
     data = export.export(jax.jit(flat))(*leaves).serialize()
     _write(path, data)
@@ -192,7 +243,7 @@ def _execution_devices(leaves) -> tuple | None:
     return None
 
 
-def _fresh_compile(lowered):
+def _fresh_compile(lowered, options=None):
     """Compile without JAX's persistent cache: an executable loaded from there
     cannot be serialised again (jaxlib 0.10 drops its functions), so the kept
     executables are made from fresh compiles, and then stand in for that cache.
@@ -213,7 +264,7 @@ def _fresh_compile(lowered):
     jax.config.update("jax_enable_compilation_cache", False)
     compilation_cache.reset_cache()
     try:
-        return lowered.compile()
+        return lowered.compile(options)
     finally:
         jax.config.update("jax_enable_compilation_cache", was)
         compilation_cache.reset_cache()
@@ -242,9 +293,10 @@ def _executable(fn: Callable, desc: str, folder: Path, leaves, tree):
         except Exception:  # noqa: BLE001 - a damaged file is made again
             pass
     lowered = jax.jit(exp.call).lower(*leaves)
+    options = dict(_OPTIONS.get(fn, ())) or None
     if exe_path is None:
-        return lowered.compile()
-    compiled = _fresh_compile(lowered)
+        return lowered.compile(options)
+    compiled = _fresh_compile(lowered, options)
     try:
         data, made_tree, _ = serialize_executable.serialize(compiled)
     except (ValueError, NotImplementedError):

@@ -176,12 +176,14 @@ def _compiled(m, cfg, horizon, grid, devices, raw_keys, opts) -> Callable:
         )(ks, hp)
     if raw_keys:
         fn = _wrapping_keys(fn, 2)
+    xla = programs.cpu_vector_options(devices)
     return programs.describe(
-        _jit_rows(fn, devices, (None, "b", "b", "b"), grid),
+        _jit_rows(fn, devices, (None, "b", "b", "b"), grid, xla),
         programs.method_fingerprint(m),
         "simulate",
         cfg, horizon, opts, grid, raw_keys,
         programs.devices_fingerprint(devices),
+        compiler_options=xla,
     )  # fmt: skip
 
 
@@ -225,10 +227,14 @@ def compile_seconds() -> float:
     return programs.compile_seconds()
 
 
-def _jit_rows(fn: Callable, devices, in_axes, grid: bool) -> Callable:
-    """jit ``fn``; with several devices, shard the rows (axis "b") over them."""
+def _jit_rows(
+    fn: Callable, devices, in_axes, grid: bool, compiler_options=None
+) -> Callable:
+    """jit ``fn`` (with XLA's ``compiler_options``); with several devices, shard
+    the rows (axis "b") over them."""
+    jit = functools.partial(jax.jit, compiler_options=compiler_options or None)
     if devices is None or len(devices) == 1:
-        return jax.jit(fn)
+        return jit(fn)
     from jax.sharding import Mesh
     from jax.sharding import PartitionSpec as Pspec
 
@@ -238,7 +244,7 @@ def _jit_rows(fn: Callable, devices, in_axes, grid: bool) -> Callable:
     sharded = jax.shard_map(
         fn, mesh=mesh, in_specs=specs, out_specs=row, check_vma=False
     )
-    return jax.jit(sharded)
+    return jit(sharded)
 
 
 def _check_int(name: str, value: Any, minimum: int) -> int:

@@ -42,10 +42,16 @@ def _devices(n: int | None):
 
 
 def _device_info(devices) -> dict[str, Any]:
+    """The devices, and the XLA options the simulation programs are compiled with
+    on them (512-bit vectors on a CPU with AVX-512: they move our bound's last
+    bits)."""
+    from legs_jax.runtime.programs import cpu_vector_options  # jax started
+
     return {
         "platform": devices[0].platform,
         "kind": devices[0].device_kind,
         "count": len(devices),
+        "xla_options": cpu_vector_options(devices),
     }
 
 
