@@ -72,6 +72,14 @@ def test_quick_json_has_every_figure(quick_result):
         r["sampler_new_samples_per_cpu_s"] / r["sampler_old_samples_per_cpu_s"]
     )
     assert r["sampler_versions"]["new"] != r["sampler_versions"]["old"]
+    # Compiled as the engine compiles its simulations; where that is not XLA's
+    # default (512-bit vectors on AVX-512), the default is timed beside it.
+    from legs_jax.runtime.programs import cpu_vector_options
+
+    assert r["sampler_compiler_options"] == cpu_vector_options()
+    if r["sampler_compiler_options"]:
+        assert _positive(r["sampler_new_default_samples_per_cpu_s"])
+        assert "new, compiled with XLA's defaults" in bench.format_table(r)
     # The human-readable table renders from the same figures.
     table = bench.format_table(r)
     assert "jax.random.beta" in table and "borges_2000" in table
@@ -296,6 +304,26 @@ def test_table_shows_the_sampler_versions_and_the_one_core_runs_it_is_given():
     (harder,) = [x for x in text.splitlines() if "original prior" in x]
     assert "21.9 % retried" in harder and harder.endswith("new/numpy 2.50x")
     assert "25.0 M/s" in harder and "10.0 M/s" in harder
+    assert "XLA's defaults" not in text and "compiled as the engine" not in text
+    # Compiled with 512-bit vectors, the sampler as XLA compiles it by default
+    # beside it, in both runs.
+    default = {
+        "sampler_new_default_samples_per_s": 28e6,
+        "sampler_new_default_samples_per_cpu_s": 29e6,
+    }
+    wide = {
+        **versions, **default, **one,
+        **{f"one_core_{k}": v for k, v in default.items()},
+        "one_core_sampler_new_default_over_numpy_per_cpu_s": 2.32,
+        "sampler_compiler_options": {"xla_cpu_prefer_vector_width": 512},
+    }  # fmt: skip
+    text = bench.format_table(_result(**wide))
+    assert "compiled as the engine compiles its simulations: " in text
+    assert "xla_cpu_prefer_vector_width=512" in text
+    (line,) = [x for x in text.splitlines() if x.lstrip().startswith("new, compiled")]
+    assert "29.0 M/cpu-s" in line and "28.0 M/s" in line
+    (line,) = [x for x in text.splitlines() if "one core, new compiled" in x]
+    assert "29.0 M/s" in line and line.endswith("new/numpy 2.32x")
 
 
 @pytest.mark.slow  # the quick benchmark above times them too

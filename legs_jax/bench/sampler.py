@@ -209,19 +209,30 @@ def _sampler_versions(
     import jax.numpy as jnp
 
     from legs_jax.core import beta_sampler, sampling
+    from legs_jax.runtime.programs import cpu_vector_options
 
     a, b = _thompson_shapes(rows, arms)
     dev = jax.local_devices()[0]
     keys = jax.device_put(jax.random.split(jax.random.key(2), rows), dev)
     aj, bj = jax.device_put((jnp.asarray(a), jnp.asarray(b)), dev)
     n = rows * arms
-    samplers = {"old": sampling.beta_rows, "new": beta_sampler.beta_rows_v2}
+    # Compiled as the engine compiles its simulations (512-bit vectors on a CPU
+    # with AVX-512); where that is not XLA's default, the engine's sampler is
+    # also timed as XLA compiles it by default ("new_default").
+    xla = cpu_vector_options([dev])
+    samplers = {
+        "old": (sampling.beta_rows, xla),
+        "new": (beta_sampler.beta_rows_v2, xla),
+    }
+    if xla:
+        samplers["new_default"] = (beta_sampler.beta_rows_v2, {})
     out: dict[str, Any] = {
         "sampler_versions": {
             "old": beta_sampler.PREVIOUS_SAMPLER_VERSION,
             "new": beta_sampler.SAMPLER_VERSION,
         },
         "sampler_versions_shape": [rows, arms],
+        "sampler_compiler_options": xla,
     }
 
     def step(sampler):
@@ -232,20 +243,21 @@ def _sampler_versions(
 
     fns: dict[str, Callable[[], Any]] = {}
     steps: dict[str, Callable[[], Any]] = {}
-    for name, sampler in samplers.items():
+    for name, (sampler, options) in samplers.items():
         _say(f"sampler versions: {name} (compiling)", quiet)
-        draw = jax.jit(sampler)
-        pick = jax.jit(step(sampler))
+        draw = jax.jit(sampler, compiler_options=options or None)
         start = time.perf_counter()
         jax.block_until_ready(draw(keys, aj, bj))
         out[f"sampler_{name}_compile_s"] = round(time.perf_counter() - start, 2)
-        jax.block_until_ready(pick(keys, aj, bj))
         fns[name] = lambda draw=draw: jax.block_until_ready(draw(keys, aj, bj))
-        steps[name] = lambda pick=pick: jax.block_until_ready(pick(keys, aj, bj))
+        if name in ("old", "new"):
+            pick = jax.jit(step(sampler), compiler_options=options or None)
+            jax.block_until_ready(pick(keys, aj, bj))
+            steps[name] = lambda pick=pick: jax.block_until_ready(pick(keys, aj, bj))
     a64, b64 = a.astype(np.float64), b.astype(np.float64)
     gen = np.random.default_rng(0)
     fns["numpy"] = lambda: gen.beta(a64, b64)
-    _say("sampler versions: timing old, new and NumPy in turns", quiet)
+    _say(f"sampler versions: timing {', '.join(fns)} in turns", quiet)
     rates = _interleaved_rates(fns, n, cfg.repeats, cfg.min_seconds)
     for name, r in rates.items():
         out[f"sampler_{name}_samples_per_s"] = r["per_s"]
@@ -259,6 +271,10 @@ def _sampler_versions(
     out["sampler_new_over_old_per_cpu_s"] = cpu["new"] / cpu["old"]
     out["sampler_new_over_numpy_per_cpu_s"] = cpu["new"] / cpu["numpy"]
     out["sampler_old_over_numpy_per_cpu_s"] = cpu["old"] / cpu["numpy"]
+    if "new_default" in cpu:
+        out["sampler_new_default_over_numpy_per_cpu_s"] = (
+            cpu["new_default"] / cpu["numpy"]
+        )
     out["thompson_step_new_over_old_per_cpu_s"] = (
         step_rates["new"]["per_cpu_s"] / step_rates["old"]["per_cpu_s"]
     )
@@ -276,12 +292,15 @@ def _harder_shapes_vs_numpy(rows: int, arms: int, cfg: Settings) -> dict[str, An
     import jax.numpy as jnp
 
     from legs_jax.core import beta_sampler
+    from legs_jax.runtime.programs import cpu_vector_options
 
     a, b = _thompson_shapes(rows, arms, strength=5.0, offset=0.0)
     dev = jax.local_devices()[0]
     keys = jax.device_put(jax.random.split(jax.random.key(3), rows), dev)
     aj, bj = jax.device_put((jnp.asarray(a), jnp.asarray(b)), dev)
-    draw = jax.jit(beta_sampler.beta_rows_v2)  # compiled by the warm-up call
+    # compiled (by the warm-up call) as the engine compiles it
+    xla = cpu_vector_options([dev]) or None
+    draw = jax.jit(beta_sampler.beta_rows_v2, compiler_options=xla)
     a64, b64 = a.astype(np.float64), b.astype(np.float64)
     gen = np.random.default_rng(0)
     fns = {

@@ -49,11 +49,20 @@ def format_table(r: dict[str, Any]) -> str:
             f"Beta samplers side by side (one device, timed in turns; Thompson-step "
             f"shapes {rows_} x {arms_}): per CPU second (per core) and per wall second",
         ]
-        for key, label in (
+        xla = r.get("sampler_compiler_options") or {}
+        if xla:
+            lines.append(
+                "  (old and new compiled as the engine compiles its simulations: "
+                + ", ".join(f"{k}={val}" for k, val in sorted(xla.items()))
+                + ")"
+            )
+        labels = [
             ("old", f"old  sampling.beta_rows ({v['old']})"),
             ("new", f"new  beta_sampler.beta_rows_v2 ({v['new']})"),
-            ("numpy", "numpy Generator.beta"),
-        ):
+        ]
+        if "sampler_new_default_samples_per_cpu_s" in r:
+            labels.append(("new_default", "new, compiled with XLA's defaults"))
+        for key, label in (*labels, ("numpy", "numpy Generator.beta")):
             lines.append(
                 f"  {label:<52}"
                 f"{_fmt_rate(r[f'sampler_{key}_samples_per_cpu_s']):>9}/cpu-s"
@@ -85,6 +94,13 @@ def format_table(r: dict[str, Any]) -> str:
                 f"{one['sampler_old_over_numpy_per_cpu_s']:.2f}x; Thompson step "
                 f"new/old {one['thompson_step_new_over_old_per_cpu_s']:.2f}x"
             )
+            if "sampler_new_default_over_numpy_per_cpu_s" in one:
+                lines.append(
+                    "  held to one core, new compiled with XLA's defaults: "
+                    f"{_fmt_rate(one['sampler_new_default_samples_per_cpu_s'])}/s, "
+                    "new/numpy "
+                    f"{one['sampler_new_default_over_numpy_per_cpu_s']:.2f}x"
+                )
         if "one_core_harder_sampler_new_over_numpy_per_cpu_s" in r:
             lines.append(
                 "  held to one core, the shapes of BORGES's original prior "
