@@ -71,7 +71,8 @@ about 10 ns per element of the batch. Retries in fixed slots per 32-element word
 Since the packing marks its valid slots without reading the pending count, finding
 the slots is twice as fast; on a 2-core Intel Xeon (AVX-512, one core) the whole
 sampler takes about 15 ns an element, the retry about 5 of them
-(``docs/performance.md``).
+(``docs/performance.md``). Compiled for 512-bit vectors, as the engine compiles its
+simulations on such a processor, it takes about 12.5 ns, with the same bits.
 On CPU, XLA contracts products and sums into fused multiply-adds fusion by fusion,
 so a change of the retry's program can move the bulk pass's last bits: a change
 must be compared bit for bit with the jitted sampler before it.
