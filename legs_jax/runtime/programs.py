@@ -90,11 +90,12 @@ def cpu_vector_options(devices=None) -> dict[str, Any]:
 
     XLA's CPU backend prefers 256-bit vectors even where the processor has 512-bit
     ones; the exact Beta sampler, most of a Thompson step, runs about 1.25 times as
-    fast with 512. The simulation programs' results are the same bits either way
-    on the problems measured (every run and curve), so this changes speed only.
-    The Dirichlet checks (:func:`legs_jax.runtime.rollouts.compiled_checks`) keep
-    XLA's default: 512-bit vectors change the last bits of a bound (the order of a
-    sum). ``LEGS_JAX_CPU_VECTOR_WIDTH=256`` (or ``512``) sets the width instead.
+    fast with 512, with the same bits. Every run and curve measured was the same
+    bits either way; our bound, computed inside the simulation programs, moves by
+    float32 rounding (its fit sums in another order). The Dirichlet checks
+    (:func:`legs_jax.runtime.rollouts.compiled_checks`) keep XLA's default, so the
+    paper's bound keeps the bits of earlier results made on the same processor.
+    ``LEGS_JAX_CPU_VECTOR_WIDTH=256`` (or ``512``) sets the width instead.
     """
     platform = devices[0].platform if devices else jax.default_backend()
     if platform != "cpu":
