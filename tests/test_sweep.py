@@ -138,9 +138,10 @@ def test_smoke_runs_every_experiment(tmp_path):
     assert p.returncode == 0, p.stderr[-3000:]
     _smoke_checks(tmp_path, None)
     main = pd.read_parquet(tmp_path / "main/runs.parquet")
-    # Every method the experiment declares (the paper's seven, the extra rows) ran.
+    # Every method the experiment declares (the paper's seven, the two Bayes-UCB
+    # rows and our method) ran.
     declared = {m for m, _, _ in experiments.get("main").ARMS}
-    assert len(declared) == 9 and set(main.method) == declared
+    assert len(declared) == 10 and set(main.method) == declared
     assert set(main[main.variant == "orig_prior"].method) == {"borges_2000"}
     # A second run finds everything done and changes nothing.
     before = _tables(tmp_path)
