@@ -50,7 +50,6 @@ _MAX_EXECUTABLES = 64
 _COMPILE_SECONDS = [0.0]
 _DESCRIPTIONS: dict[Any, str] = {}
 _OPTIONS: dict[Any, tuple] = {}
-_PLAIN: dict[Any, Callable] = {}
 _FOLDER = "legs_jax-exported"
 # The choice of the simulation programs' vector width on CPU (see cpu_vector_options).
 VECTOR_WIDTH_ENV = "LEGS_JAX_CPU_VECTOR_WIDTH"
@@ -76,9 +75,6 @@ def describe(
     options = tuple(sorted((compiler_options or {}).items()))
     if options:
         _OPTIONS[fn] = options
-        # Exported, the program is traced inside another jit, where a nested jit
-        # may not carry compiler options: the same function jitted without them.
-        _PLAIN[fn] = jax.jit(fn.__wrapped__)
     if name is not None:
         _DESCRIPTIONS[fn] = repr((name, *parts, *((options,) if options else ())))
     return fn
@@ -198,7 +194,9 @@ def _exported(fn: Callable, key: str, folder: Path, leaves, tree):
         except Exception:  # noqa: BLE001 - a damaged file is made again
             pass
 
-    plain = _PLAIN.get(fn, fn)
+    # Exported, the program is traced inside another jit, where a nested jit may
+    # not carry compiler options: the same function jitted without them.
+    plain = jax.jit(fn.__wrapped__) if fn in _OPTIONS else fn
 
     def flat(*xs):
         return plain(*jax.tree_util.tree_unflatten(tree, xs))
